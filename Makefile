@@ -1,0 +1,44 @@
+# Two commands for a fresh Debian machine with python3 and make (README.md):
+#   make run   -- create .venv, execute every notebook against the virtual leg -> reports/
+#   make test  -- same venv, run the whole test suite (notebook execution included)
+
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed-stamp
+export MPLBACKEND := Agg
+export PYDEVD_DISABLE_FILE_VALIDATION := 1
+
+.PHONY: run test venv sysdeps bench clean
+
+venv: $(STAMP)
+
+$(STAMP): environment.txt pyproject.toml
+	@$(MAKE) --no-print-directory sysdeps
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -r environment.txt
+	$(BIN)/python -m pip install --quiet --no-deps --no-build-isolation -e .
+	touch $(STAMP)
+
+# System packages: libusb for the odrive package's native part. Installed with apt-get when
+# missing and we are root; otherwise a warning (only the usb backend needs it).
+sysdeps:
+	@if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so'; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "installing libusb-1.0-0 (apt-get)"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 >/dev/null; \
+	  else echo "warning: libusb-1.0 not found; the usb backend will not work (apt-get install libusb-1.0-0)"; fi; \
+	fi
+
+run: $(STAMP)
+	$(BIN)/python -m leglib run --out reports
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+bench: $(STAMP)
+	$(BIN)/python -m benchmarks
+
+clean:
+	rm -rf $(VENV) reports/*.ipynb reports/*.html reports/figures reports/metrics

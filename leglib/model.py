@@ -1,0 +1,488 @@
+"""Numeric five-bar model: kinematics, forward dynamics, energy, linearization, simulation.
+
+Two models (see :mod:`leglib.derivation`):
+
+- ``"parallelogram"``: the thesis's model (a), eqs. 5.1-5.7;
+- ``"fivebar"``: the exact coaxial five-bar (b), reduced from maximal coordinates onto
+  q = (q1, q2) through the loop-closure constraint.
+
+Units: SI throughout (rad, rad/s, N*m, m). Joint angles are absolute, from +x,
+counter-clockwise; at the operating point (267 deg, 273 deg) the leg hangs down.
+
+The per-point functions are numba-compiled scalars (``_fivebar_dynamics`` etc.) shared with
+the twin's batch kernel (:mod:`leglib.twin`); the public functions accept scalars or arrays.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from . import _generated as gen
+from .derivation import PARAM_NAMES
+from .params import LegParams
+
+MODELS = ("fivebar", "parallelogram")
+STATE_NAMES = ("q1", "dq1", "q2", "dq2")
+COULOMB_VELOCITY = 1e-3  # rad/s: width of the smooth (tanh) Coulomb term
+
+
+def param_vector(leg: LegParams) -> np.ndarray:
+    """The parameter vector P (order of ``derivation.PARAM_NAMES``) the kernels take."""
+    return np.array([float(getattr(leg, n)) for n in PARAM_NAMES])
+
+
+def _check_model(model: str) -> str:
+    if model not in MODELS:
+        raise ValueError(f"model must be one of {MODELS}, got {model!r}")
+    return model
+
+
+# ---------------------------------------------------------------------------------------
+# compiled per-point kernels
+# ---------------------------------------------------------------------------------------
+
+@njit(cache=True)
+def _lower_angles(q1, q2, P):
+    """Absolute angles (phi3, phi4) of the lower links for joint angles q1, q2 [rad].
+
+    The foot is the intersection of the circles (P1, l4) and (P2, l3) on the far side of the
+    line P1-P2 from the hip (knee-out branch). Valid for 0 < q2 - q1 < pi (mod 2 pi), the
+    leg's assembly mode; returns NaNs outside it and where the loop cannot close.
+    """
+    l1, l2, l3, l4 = P[0], P[1], P[2], P[3]
+    if math.sin(q2 - q1) <= 1e-9:
+        return math.nan, math.nan
+    p1x, p1y = l1 * math.cos(q1), l1 * math.sin(q1)
+    p2x, p2y = l2 * math.cos(q2), l2 * math.sin(q2)
+    dx, dy = p2x - p1x, p2y - p1y
+    d = math.sqrt(dx * dx + dy * dy)
+    if d < 1e-12 or d > l3 + l4 or d < abs(l4 - l3):
+        return math.nan, math.nan
+    ex, ey = dx / d, dy / d
+    a = (l4 * l4 - l3 * l3 + d * d) / (2.0 * d)
+    hh = math.sqrt(max(l4 * l4 - a * a, 0.0))
+    nx, ny = -ey, ex
+    side = -(nx * p1x + ny * p1y)  # where the hip lies relative to the line P1-P2
+    s = -1.0 if side > 0 else 1.0
+    fx = p1x + a * ex + s * hh * nx
+    fy = p1y + a * ey + s * hh * ny
+    return math.atan2(fy - p2y, fx - p2x), math.atan2(fy - p1y, fx - p1x)
+
+
+@njit(cache=True)
+def _fivebar_dynamics(q1, q2, dq1, dq2, P):
+    """Reduced dynamics of the exact five-bar at one point.
+
+    Returns (D11, D12, D22, b1, b2, phi3, phi4, dphi3, dphi4) with D the 2x2 inertia
+    matrix on q and b = S^T (M a0 + h + G) the velocity-product plus gravity torque, so
+    that D ddq + b = tau (before friction).
+    """
+    l1, l2, l3, l4 = P[0], P[1], P[2], P[3]
+    phi3, phi4 = _lower_angles(q1, q2, P)
+    # Phi_phi = [-l3 u'(phi3), l4 u'(phi4)], Phi_q = [l1 u'(q1), -l2 u'(q2)], u' = (-sin, cos)
+    a11, a21 = l3 * math.sin(phi3), -l3 * math.cos(phi3)
+    a12, a22 = -l4 * math.sin(phi4), l4 * math.cos(phi4)
+    det = a11 * a22 - a12 * a21
+    b11, b21 = -l1 * math.sin(q1), l1 * math.cos(q1)
+    b12, b22 = l2 * math.sin(q2), -l2 * math.cos(q2)
+    # J = -Phi_phi^{-1} Phi_q  (dphi = J dq)
+    j11 = -(a22 * b11 - a12 * b21) / det
+    j12 = -(a22 * b12 - a12 * b22) / det
+    j21 = -(-a21 * b11 + a11 * b21) / det
+    j22 = -(-a21 * b12 + a11 * b22) / det
+    dphi3 = j11 * dq1 + j12 * dq2
+    dphi4 = j21 * dq1 + j22 * dq2
+    # acceleration of (phi3, phi4) at ddq = 0: Phi_phi a0 = w
+    wx = (l1 * math.cos(q1) * dq1 * dq1 + l4 * math.cos(phi4) * dphi4 * dphi4
+          - l2 * math.cos(q2) * dq2 * dq2 - l3 * math.cos(phi3) * dphi3 * dphi3)
+    wy = (l1 * math.sin(q1) * dq1 * dq1 + l4 * math.sin(phi4) * dphi4 * dphi4
+          - l2 * math.sin(q2) * dq2 * dq2 - l3 * math.sin(phi3) * dphi3 * dphi3)
+    a03 = (a22 * wx - a12 * wy) / det
+    a04 = (-a21 * wx + a11 * wy) / det
+    t = gen.fivebar_terms(q1, q2, phi3, phi4, dq1, dq2, dphi3, dphi4, P)
+    # M row-major 4x4 in t[0:16], h in t[16:20], G in t[20:24]
+    # S = [[1, 0], [0, 1], [j11, j12], [j21, j22]]
+    s0 = (1.0, 0.0, j11, j21)
+    s1 = (0.0, 1.0, j12, j22)
+    ms0 = [0.0, 0.0, 0.0, 0.0]
+    ms1 = [0.0, 0.0, 0.0, 0.0]
+    f = [0.0, 0.0, 0.0, 0.0]
+    for i in range(4):
+        acc0 = 0.0
+        acc1 = 0.0
+        for k in range(4):
+            acc0 += t[4 * i + k] * s0[k]
+            acc1 += t[4 * i + k] * s1[k]
+        ms0[i] = acc0
+        ms1[i] = acc1
+        f[i] = t[4 * i + 2] * a03 + t[4 * i + 3] * a04 + t[16 + i] + t[20 + i]
+    d11 = 0.0
+    d12 = 0.0
+    d22 = 0.0
+    bb1 = 0.0
+    bb2 = 0.0
+    for i in range(4):
+        d11 += s0[i] * ms0[i]
+        d12 += s0[i] * ms1[i]
+        d22 += s1[i] * ms1[i]
+        bb1 += s0[i] * f[i]
+        bb2 += s1[i] * f[i]
+    return d11, d12, d22, bb1, bb2, phi3, phi4, dphi3, dphi4
+
+
+@njit(cache=True)
+def _parallelogram_dynamics(q1, q2, dq1, dq2, P):
+    """Model (a) at one point: (D11, D12, D22, b1, b2) with D ddq + b = tau."""
+    t = gen.parallelogram_terms(q1, q2, dq1, dq2, P)
+    return t[0], t[1], t[3], t[4] + t[6], t[5] + t[7]
+
+
+@njit(cache=True)
+def _friction(dq1, dq2, F):
+    """Joint friction torques; F = (c11, c12, c21, c22, coulomb1, coulomb2)."""
+    f1 = F[0] * dq1 + F[1] * dq2 + F[4] * math.tanh(dq1 / 1e-3)
+    f2 = F[2] * dq1 + F[3] * dq2 + F[5] * math.tanh(dq2 / 1e-3)
+    return f1, f2
+
+
+@njit(cache=True)
+def _accel(model_id, q1, q2, dq1, dq2, tau1, tau2, P, F):
+    """Joint accelerations. model_id 0: five-bar, 1: parallelogram."""
+    if model_id == 0:
+        r = _fivebar_dynamics(q1, q2, dq1, dq2, P)
+        d11, d12, d22, b1, b2 = r[0], r[1], r[2], r[3], r[4]
+    else:
+        d11, d12, d22, b1, b2 = _parallelogram_dynamics(q1, q2, dq1, dq2, P)
+    f1, f2 = _friction(dq1, dq2, F)
+    r1 = tau1 - b1 - f1
+    r2 = tau2 - b2 - f2
+    det = d11 * d22 - d12 * d12
+    return (d22 * r1 - d12 * r2) / det, (-d12 * r1 + d11 * r2) / det
+
+
+@njit(cache=True)
+def _batch_terms(model_id, q1, q2, dq1, dq2, P, out):
+    for i in range(q1.size):
+        if model_id == 0:
+            r = _fivebar_dynamics(q1[i], q2[i], dq1[i], dq2[i], P)
+            for k in range(5):
+                out[i, k] = r[k]
+        else:
+            r2 = _parallelogram_dynamics(q1[i], q2[i], dq1[i], dq2[i], P)
+            for k in range(5):
+                out[i, k] = r2[k]
+
+
+@njit(cache=True)
+def _batch_lower_angles(q1, q2, P, out):
+    for i in range(q1.size):
+        out[i, 0], out[i, 1] = _lower_angles(q1[i], q2[i], P)
+
+
+@njit(cache=True)
+def _batch_energy(model_id, q1, q2, dq1, dq2, P, out):
+    for i in range(q1.size):
+        if model_id == 0:
+            r = _fivebar_dynamics(q1[i], q2[i], dq1[i], dq2[i], P)
+            e = gen.fivebar_energy(q1[i], q2[i], r[5], r[6], dq1[i], dq2[i], r[7], r[8], P)
+        else:
+            e = gen.parallelogram_energy(q1[i], q2[i], dq1[i], dq2[i], P)
+        out[i, 0], out[i, 1] = e[0], e[1]
+
+
+def _flat(*arrays):
+    b = np.broadcast_arrays(*[np.asarray(a, dtype=float) for a in arrays])
+    return b[0].shape, [np.ascontiguousarray(x).ravel() for x in b]
+
+
+def friction_vector(leg: LegParams, scale: float = 1.0) -> np.ndarray:
+    """F = (c11, c12, c21, c22, coulomb1, coulomb2) as the kernels take it."""
+    return scale * np.array([leg.c11, leg.c12, leg.c21, leg.c22, leg.coulomb1, leg.coulomb2])
+
+
+# ---------------------------------------------------------------------------------------
+# kinematics
+# ---------------------------------------------------------------------------------------
+
+def lower_link_angles(leg: LegParams, q1, q2):
+    """Absolute angles (phi3, phi4) [rad] of the lower links; NaN where the loop can't close."""
+    shape, (a, b) = _flat(q1, q2)
+    out = np.empty((a.size, 2))
+    _batch_lower_angles(a, b, param_vector(leg), out)
+    return out[:, 0].reshape(shape), out[:, 1].reshape(shape)
+
+
+def foot_position(leg: LegParams, q1, q2):
+    """Foot position (x, y) [m] of the exact five-bar, hip at the origin.
+
+    Parameters
+    ----------
+    q1, q2 : float or array_like [rad]
+        Absolute angles of the upper links; broadcast together.
+    """
+    q1 = np.asarray(q1, dtype=float)
+    phi3, phi4 = lower_link_angles(leg, q1, q2)
+    return leg.l1 * np.cos(q1) + leg.l4 * np.cos(phi4), leg.l1 * np.sin(q1) + leg.l4 * np.sin(phi4)
+
+
+def inverse_kinematics(leg: LegParams, x, y):
+    """Joint angles (q1, q2) [rad] that put the foot at (x, y) [m] (knee-out branch).
+
+    Raises ValueError for a point outside the reachable annulus.
+    """
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    r = np.hypot(x, y)
+    psi = np.arctan2(y, x)
+    c1 = (leg.l1 ** 2 + r ** 2 - leg.l4 ** 2) / (2 * leg.l1 * np.where(r > 0, r, np.nan))
+    c2 = (leg.l2 ** 2 + r ** 2 - leg.l3 ** 2) / (2 * leg.l2 * np.where(r > 0, r, np.nan))
+    bad = ~(np.isfinite(c1) & np.isfinite(c2) & (np.abs(c1) <= 1) & (np.abs(c2) <= 1))
+    if np.any(bad):
+        raise ValueError(f"inverse_kinematics: {int(np.sum(bad))} point(s) outside the workspace "
+                         f"(foot distance from hip must lie in the reachable annulus)")
+    q1 = np.mod(psi - np.arccos(c1), 2 * np.pi)
+    q2 = np.mod(psi + np.arccos(c2), 2 * np.pi)
+    return q1, q2
+
+
+def thesis_foot_height(leg: LegParams, q1, q2):
+    """The thesis's foot height, eq. 6.5: y = l1 sin q1 + l2 sin q2 [m] (upper links only)."""
+    return leg.l1 * np.sin(q1) + leg.l2 * np.sin(q2)
+
+
+def leg_length(leg: LegParams, q1, q2):
+    """Hip-to-foot distance [m] (Doggo's L = L1 cos(gamma) + sqrt(L2^2 - L1^2 sin^2(gamma)))."""
+    x, y = foot_position(leg, q1, q2)
+    return np.hypot(x, y)
+
+
+def workspace_grid(leg: LegParams, n: int = 60, gap_deg=(6.0, 150.0), theta_deg=(230.0, 310.0)):
+    """Joint-angle grid over the working range: q2 - q1 in gap_deg, (q1+q2)/2 in theta_deg.
+
+    Returns (q1, q2) arrays of shape (n, n) [rad].
+    """
+    gap = np.radians(np.linspace(*gap_deg, n))
+    theta = np.radians(np.linspace(*theta_deg, n))
+    G, T = np.meshgrid(gap, theta, indexing="ij")
+    return T - G / 2, T + G / 2
+
+
+# ---------------------------------------------------------------------------------------
+# dynamics
+# ---------------------------------------------------------------------------------------
+
+def _terms(leg, q1, q2, dq1=0.0, dq2=0.0, model="fivebar"):
+    mid = MODELS.index(_check_model(model))
+    shape, (a, b, c, d) = _flat(q1, q2, dq1, dq2)
+    out = np.empty((a.size, 5))
+    _batch_terms(mid, a, b, c, d, param_vector(leg), out)
+    return shape, out
+
+
+def mass_matrix(leg: LegParams, q1, q2, model: str = "fivebar") -> np.ndarray:
+    """Inertia matrix D(q) on the joint angles, shape ``broadcast(q1, q2).shape + (2, 2)``."""
+    shape, t = _terms(leg, q1, q2, model=model)
+    D = np.stack([t[:, 0], t[:, 1], t[:, 1], t[:, 2]], axis=-1).reshape(shape + (2, 2))
+    return D
+
+
+def gravity_torque(leg: LegParams, q1, q2, model: str = "fivebar") -> np.ndarray:
+    """Gravity torque g(q) [N*m] on the joints, shape ``shape + (2,)``."""
+    shape, t = _terms(leg, q1, q2, model=model)
+    return t[:, 3:5].reshape(shape + (2,))
+
+
+def bias_torque(leg: LegParams, q1, q2, dq1, dq2, model: str = "fivebar") -> np.ndarray:
+    """Velocity-product plus gravity torque b(q, dq) [N*m], so that D ddq + b = tau."""
+    shape, t = _terms(leg, q1, q2, dq1, dq2, model=model)
+    return t[:, 3:5].reshape(shape + (2,))
+
+
+def energy(leg: LegParams, q1, q2, dq1, dq2, model: str = "fivebar"):
+    """Kinetic and potential energy (T, V) [J]."""
+    mid = MODELS.index(_check_model(model))
+    shape, (a, b, c, d) = _flat(q1, q2, dq1, dq2)
+    out = np.empty((a.size, 2))
+    _batch_energy(mid, a, b, c, d, param_vector(leg), out)
+    return out[:, 0].reshape(shape), out[:, 1].reshape(shape)
+
+
+def forward_dynamics(leg: LegParams, q, dq, tau, model: str = "fivebar", friction: bool = True):
+    """Joint accelerations ddq [rad/s^2] for one state.
+
+    Parameters
+    ----------
+    q, dq : (2,) joint angles [rad] and velocities [rad/s]
+    tau : (2,) joint torques [N*m]
+    friction : include the leg's damping matrix and Coulomb terms
+    """
+    mid = MODELS.index(_check_model(model))
+    F = friction_vector(leg, 1.0 if friction else 0.0)
+    return np.array(_accel(mid, float(q[0]), float(q[1]), float(dq[0]), float(dq[1]),
+                           float(tau[0]), float(tau[1]), param_vector(leg), F))
+
+
+def equilibrium_torque(leg: LegParams, q0=None, model: str = "parallelogram") -> np.ndarray:
+    """Torques [N*m] holding the leg at rest at ``q0`` (default: the operating point)."""
+    q0 = leg.q0 if q0 is None else q0
+    return gravity_torque(leg, q0[0], q0[1], model=model)
+
+
+def simulate(leg: LegParams, t, x0, tau=None, model: str = "fivebar", friction: bool = True,
+             rtol: float = 1e-9, atol: float = 1e-11):
+    """Integrate the nonlinear model with scipy's DOP853.
+
+    Parameters
+    ----------
+    t : (N,) output times [s], increasing
+    x0 : (4,) initial state (q1, dq1, q2, dq2)
+    tau : None (zero), a (2,) constant, an (N, 2) table (zero-order hold on ``t``), or a
+        callable ``tau(t, x) -> (2,)`` [N*m]
+    Returns
+    -------
+    x : (N, 4) states at ``t``
+    """
+    from scipy.integrate import solve_ivp
+
+    t = np.asarray(t, dtype=float)
+    mid = MODELS.index(_check_model(model))
+    P = param_vector(leg)
+    F = friction_vector(leg, 1.0 if friction else 0.0)
+    if tau is None:
+        torque = lambda tt, x: (0.0, 0.0)  # noqa: E731
+    elif callable(tau):
+        torque = tau
+    else:
+        table = np.asarray(tau, dtype=float)
+        if table.shape == (2,):
+            torque = lambda tt, x: table  # noqa: E731
+        elif table.shape == (t.size, 2):
+            torque = lambda tt, x: table[min(max(np.searchsorted(t, tt, "right") - 1, 0),  # noqa: E731
+                                             t.size - 1)]
+        else:
+            raise ValueError(f"tau must be (2,) or ({t.size}, 2), got shape {table.shape}")
+
+    def rhs(tt, x):
+        u = torque(tt, x)
+        a1, a2 = _accel(mid, x[0], x[2], x[1], x[3], float(u[0]), float(u[1]), P, F)
+        if not (math.isfinite(a1) and math.isfinite(a2)):
+            raise ValueError(
+                f"simulate: the {model} model is singular at t = {tt:.6g} s, q = "
+                f"({math.degrees(x[0]):.3f}, {math.degrees(x[2]):.3f}) deg (the loop cannot "
+                f"close, or upper links coincide); keep q2 - q1 inside (0, 180) deg")
+        return (x[1], a1, x[3], a2)
+
+    sol = solve_ivp(rhs, (t[0], t[-1]), np.asarray(x0, dtype=float), t_eval=t, method="DOP853",
+                    rtol=rtol, atol=atol, max_step=(t[1] - t[0]) if t.size > 1 else np.inf)
+    if not sol.success:
+        raise RuntimeError(f"simulate: integration failed: {sol.message}")
+    return sol.y.T
+
+
+# ---------------------------------------------------------------------------------------
+# linearization
+# ---------------------------------------------------------------------------------------
+
+def _thesis_decoupled_AB(leg: LegParams, q0):
+    """Listing 7.5's linearization: d12 dropped, D constant, g2 with +m4 lc4."""
+    d11 = leg.m1 * leg.lc1 ** 2 + leg.m3 * leg.lc3 ** 2 + leg.m4 * leg.l1 ** 2 + leg.I1 + leg.I3 + leg.Jd1
+    d22 = leg.m2 * leg.lc2 ** 2 + leg.m3 * leg.l2 ** 2 + leg.m4 * leg.lc4 ** 2 + leg.I2 + leg.I4 + leg.Jd2
+    k1 = leg.m1 * leg.lc1 + leg.m3 * leg.lc3 + leg.m4 * leg.l1
+    k2 = leg.m2 * leg.lc2 + leg.m3 * leg.l2 + leg.m4 * leg.lc4  # Listing 7.5's sign
+    A = np.array([
+        [0.0, 1.0, 0.0, 0.0],
+        [leg.g * k1 * math.sin(q0[0]) / d11, -leg.c11 / d11, 0.0, -leg.c12 / d11],
+        [0.0, 0.0, 0.0, 1.0],
+        [0.0, -leg.c21 / d22, leg.g * k2 * math.sin(q0[1]) / d22, -leg.c22 / d22],
+    ])
+    B = np.array([[0.0, 0.0], [1.0 / d11, 0.0], [0.0, 0.0], [0.0, 1.0 / d22]])
+    return A, B
+
+
+def _numeric_AB(leg: LegParams, q0, model: str, eps: float = 1e-6):
+    """Central-difference Jacobians of the nonlinear model at rest at q0 with u0 = g(q0)."""
+    u0 = equilibrium_torque(leg, q0, model=model)
+    x0 = np.array([q0[0], 0.0, q0[1], 0.0])
+
+    def f(x, u):
+        a1, a2 = forward_dynamics(leg, (x[0], x[2]), (x[1], x[3]), u, model=model)
+        return np.array([x[1], a1, x[3], a2])
+
+    A = np.empty((4, 4))
+    B = np.empty((4, 2))
+    for j in range(4):
+        dx = np.zeros(4)
+        dx[j] = eps
+        A[:, j] = (f(x0 + dx, u0) - f(x0 - dx, u0)) / (2 * eps)
+    for j in range(2):
+        du = np.zeros(2)
+        du[j] = eps
+        B[:, j] = (f(x0, u0 + du) - f(x0, u0 - du)) / (2 * eps)
+    # Coulomb friction is not differentiable at rest: linearize its viscous part only
+    return A, B
+
+
+def linearize(leg: LegParams, q0=None, coupled: bool = False, model: str = "parallelogram"):
+    """Linearize the leg at rest at ``q0`` with the equilibrium torques.
+
+    Parameters
+    ----------
+    leg : LegParams
+    q0 : (q1, q2) [rad], default the leg's operating point (267 deg, 273 deg)
+    coupled : False gives the thesis's decoupled form (Listing 7.5: d12 dropped, D constant,
+        g2 with Listing 7.5's +m4 lc4, which eq. 5.11 was computed with); True gives the full
+        coupled linearization of ``model``.
+    model : "parallelogram" (the thesis's model a) or "fivebar" (exact model b); used when
+        ``coupled`` is True.
+
+    Returns
+    -------
+    control.StateSpace
+        states (q1, dq1, q2, dq2) [rad, rad/s], inputs (tau1, tau2) [N*m], outputs (q1, q2).
+    """
+    import control
+
+    q0 = leg.q0 if q0 is None else (float(q0[0]), float(q0[1]))
+    if coupled:
+        leg_viscous = leg.replace(coulomb1=0.0, coulomb2=0.0)
+        A, B = _numeric_AB(leg_viscous, q0, _check_model(model))
+    else:
+        A, B = _thesis_decoupled_AB(leg, q0)
+    C = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
+    D = np.zeros((2, 2))
+    return control.ss(A, B, C, D, states=list(STATE_NAMES), inputs=["tau1", "tau2"],
+                      outputs=["q1", "q2"], name=f"leg_{'coupled_' + model if coupled else 'thesis'}")
+
+
+# eq. 5.11 as printed in the thesis (A[3,3] printed +30.22).
+THESIS_A_PRINTED = np.array([[0, 1, 0, 0], [-66.12, -31.84, 0, 0.65],
+                             [0, 0, 0, 1], [0, 0.62, -65.78, 30.22]], dtype=float)
+THESIS_B = np.array([[0, 0], [324.85, 0], [0, 0], [0, 308.35]], dtype=float)
+# ... and as it must read for positive damping.
+THESIS_A = THESIS_A_PRINTED.copy()
+THESIS_A[3, 3] = -30.22
+
+
+def compare_models(leg: LegParams, n: int = 60, **grid) -> dict:
+    """How far the thesis's model (a) is from the exact five-bar (b) over the working range.
+
+    Returns a dict of (n, n) arrays on :func:`workspace_grid`: ``q1``, ``q2`` [rad],
+    ``gap`` = q2 - q1 and ``theta`` = (q1 + q2)/2 [rad]; ``D_rel`` = ||D_a - D_b|| / ||D_b||
+    (Frobenius); ``G_diff`` = ||G_a - G_b|| [N*m]; ``y_exact`` [m] the foot height and
+    ``y_eq65`` [m] the thesis's eq. 6.5.
+    """
+    q1, q2 = workspace_grid(leg, n=n, **grid)
+    Da = mass_matrix(leg, q1, q2, model="parallelogram")
+    Db = mass_matrix(leg, q1, q2, model="fivebar")
+    Ga = gravity_torque(leg, q1, q2, model="parallelogram")
+    Gb = gravity_torque(leg, q1, q2, model="fivebar")
+    _, y = foot_position(leg, q1, q2)
+    return {
+        "q1": q1, "q2": q2, "gap": q2 - q1, "theta": (q1 + q2) / 2,
+        "D_rel": np.linalg.norm(Da - Db, axis=(-2, -1)) / np.linalg.norm(Db, axis=(-2, -1)),
+        "G_diff": np.linalg.norm(Ga - Gb, axis=-1),
+        "y_exact": y, "y_eq65": thesis_foot_height(leg, q1, q2),
+    }

@@ -1,0 +1,115 @@
+"""Small helpers that every notebook uses: parameter checks, metrics, figure output.
+
+Notebooks keep a ``parameters`` cell of plain typed values; the first cell after it calls
+:func:`require` for each, so a bad value stops the notebook at once with a message that
+names the parameter.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Iterable
+
+
+class NotebookParameterError(ValueError):
+    """A notebook parameter has the wrong type or is out of range."""
+
+
+def require(name: str, value: Any, kind: type | tuple, *, choices: Iterable | None = None,
+            low: float | None = None, high: float | None = None) -> Any:
+    """Check one notebook parameter and return it.
+
+    Parameters
+    ----------
+    name : the parameter's name, used in the message
+    kind : accepted type(s); ``float`` also accepts ``int`` (not ``bool``)
+    choices : allowed values
+    low, high : inclusive numeric bounds
+    """
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    if float in kinds:
+        kinds = kinds + (int,)
+    if isinstance(value, bool) and bool not in kinds:
+        ok = False
+    else:
+        ok = isinstance(value, kinds)
+    if not ok:
+        names = "/".join(k.__name__ for k in (kind if isinstance(kind, tuple) else (kind,)))
+        raise NotebookParameterError(f"parameter {name!r} must be {names}, got {value!r}")
+    if choices is not None and value not in tuple(choices):
+        raise NotebookParameterError(f"parameter {name!r} must be one of {tuple(choices)}, "
+                                     f"got {value!r}")
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        if isinstance(value, float) and not math.isfinite(value):
+            raise NotebookParameterError(f"parameter {name!r} must be finite, got {value!r}")
+        if low is not None and value < low:
+            raise NotebookParameterError(f"parameter {name!r} must be >= {low}, got {value!r}")
+        if high is not None and value > high:
+            raise NotebookParameterError(f"parameter {name!r} must be <= {high}, got {value!r}")
+    return value
+
+
+def _jsonable(obj):
+    import numpy as np
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        v = float(obj)
+        return v if math.isfinite(v) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, complex):
+        return [obj.real, obj.imag]
+    return obj
+
+
+def write_json_atomic(path: str | Path, data: dict) -> Path:
+    """Write ``data`` as JSON via a temporary file and rename (never a half-written file)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            json.dump(_jsonable(data), fh, indent=2, sort_keys=True)
+            fh.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def write_metrics(path: str | Path, **metrics) -> Path:
+    """The small metrics JSON every notebook writes (tests assert on it)."""
+    return write_json_atomic(path, metrics)
+
+
+def save_figure(fig, figures_dir: str | Path, name: str) -> Path:
+    """Save ``fig`` as ``<figures_dir>/<name>.png`` and return the path."""
+    out = Path(figures_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{name}.png"
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    return path
+
+
+def matrix_comparison_markdown(name: str, ours, theirs, digits: int = 2) -> str:
+    """Markdown table of two matrices side by side with the relative error of each entry."""
+    import numpy as np
+    ours, theirs = np.asarray(ours), np.asarray(theirs)
+    rows = [f"**{name}** — leglib │ thesis │ relative error", "",
+            "| row | leglib | thesis | rel. error |", "|---|---|---|---|"]
+    for i in range(ours.shape[0]):
+        o = ", ".join(f"{v:.{digits}f}" for v in ours[i])
+        t = ", ".join(f"{v:.{digits}f}" for v in theirs[i])
+        err = ", ".join("—" if v == 0 else f"{abs(a - v) / abs(v):.1e}" for a, v in zip(ours[i], theirs[i]))
+        rows.append(f"| {i} | {o} | {t} | {err} |")
+    return "\n".join(rows)

@@ -1,0 +1,65 @@
+"""Every notebook: committed clean, typed parameters cell, and runs in smoke mode with
+metrics that say it computed the right things."""
+
+import ast
+import json
+
+import nbformat
+import pytest
+
+from leglib.notebooks import execute, notebook_paths
+
+NOTEBOOKS = notebook_paths()
+
+
+def test_there_are_notebooks():
+    assert [p.name[:2] for p in NOTEBOOKS] == sorted(p.name[:2] for p in NOTEBOOKS)
+    assert len(NOTEBOOKS) >= 1
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_committed_without_outputs(path):
+    nb = nbformat.read(str(path), as_version=4)
+    for cell in nb.cells:
+        if cell.cell_type == "code":
+            assert not cell.outputs, f"{path.name}: cell {cell.get('id')} has outputs"
+            assert cell.execution_count is None, f"{path.name}: cell {cell.get('id')} has a count"
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+def test_parameters_cell_is_plain_typed_values(path):
+    nb = nbformat.read(str(path), as_version=4)
+    cells = [c for c in nb.cells if "parameters" in c.metadata.get("tags", [])]
+    assert len(cells) == 1, f"{path.name}: needs exactly one cell tagged 'parameters'"
+    tree = ast.parse(cells[0].source)
+    names = []
+    for node in tree.body:
+        assert isinstance(node, ast.AnnAssign), f"{path.name}: parameter without annotation"
+        assert isinstance(node.value, ast.Constant), f"{path.name}: {ast.unparse(node)} not plain"
+        names.append(node.target.id)
+    for line in cells[0].source.splitlines():
+        assert "#" in line, f"{path.name}: parameter line without a unit/explanation: {line}"
+    assert {"smoke", "figures_dir", "metrics_path"} <= set(names)
+
+
+def _run(path, tmp_path, **params):
+    execute(path, tmp_path, {"smoke": True, **params}, html=False)
+    return json.loads((tmp_path / "metrics" / f"{path.stem}.json").read_text())
+
+
+@pytest.mark.notebook
+def test_01_derivation(tmp_path):
+    m = _run(NOTEBOOKS[0], tmp_path)
+    assert m["eq511_max_rel_error"] < 0.01
+    assert m["printed_A_max_real_eig"] > 0 > m["corrected_A_max_real_eig"]
+    assert m["linear_vs_nonlinear_rms_deg"] < 0.02 * m["linear_vs_nonlinear_travel_deg"]
+    assert 0 < m["inertia_rel_difference_median"] < 10
+    assert (tmp_path / "figures" / "01_model_difference.png").stat().st_size > 10_000
+
+
+@pytest.mark.notebook
+def test_bad_parameter_stops_notebook_early(tmp_path):
+    import papermill as pm
+    with pytest.raises(pm.PapermillExecutionError) as err:
+        execute(NOTEBOOKS[0], tmp_path, {"smoke": True, "grid_n": "many"}, html=False)
+    assert "parameter 'grid_n' must be int" in str(err.value)
