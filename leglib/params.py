@@ -33,6 +33,7 @@ _UNITS: dict[str, tuple[float, str]] = {
     "N*m": (1.0, "N*m"),
     "N*m*s/rad": (1.0, "N*m*s/rad"),
     "N*m/A": (1.0, "N*m/A"),
+    "N*m/rad": (1.0, "N*m/rad"),
     "V*s/rad": (1.0, "V*s/rad"),
     "V/A": (1.0, "V/A"),
     "rad": (1.0, "rad"),
@@ -50,6 +51,7 @@ _UNITS: dict[str, tuple[float, str]] = {
     "mH": (1e-3, "H"),
     "-": (1.0, "-"),
     "count/turn": (1.0, "count/turn"),
+    "count": (1.0, "count"),
     # ODrive-native units are kept native in OdriveConfig: they exist only at the device boundary.
     "turn/s": (1.0, "turn/s"),
     "(turn/s)/turn": (1.0, "(turn/s)/turn"),
@@ -66,7 +68,7 @@ def _p(section: str, unit: str, check: str = "positive"):
     """Field metadata: TOML section, expected SI unit, value check.
 
     check is one of "positive", "nonnegative", "finite", "count" (positive integer),
-    "index" (non-negative integer).
+    "index" (non-negative integer), "sign" (+1 or -1), "string" (plain TOML string, no unit).
     """
     return field(metadata={"section": section, "unit": unit, "check": check})
 
@@ -95,6 +97,10 @@ def _check_value(path: Path, key: str, value: Any, check: str) -> float | int:
         raise ParameterError(f"{where}: value must be positive, got {value!r}")
     if check == "nonnegative" and value < 0:
         raise ParameterError(f"{where}: value must be non-negative, got {value!r}")
+    if check == "sign":
+        if value not in (-1, 1):
+            raise ParameterError(f"{where}: value must be +1 or -1, got {value!r}")
+        return int(value)
     if check in ("count", "index"):
         if float(value) != int(value):
             raise ParameterError(f"{where}: value must be an integer, got {value!r}")
@@ -128,6 +134,12 @@ def load_dataclass(cls, path: Path, overrides: dict[str, float] | None = None):
         if not isinstance(table, dict) or f.name not in table:
             raise ParameterError(f"{path}: missing field {key!r} [{si_unit}]")
         entry = table[f.name]
+        if check == "string":
+            if not isinstance(entry, str) or not entry:
+                raise ParameterError(f"{path}: field {key!r} must be a non-empty string, "
+                                     f"got {entry!r}")
+            values[f.name] = entry
+            continue
         if not isinstance(entry, dict) or "value" not in entry or "unit" not in entry:
             raise ParameterError(
                 f"{path}: field {key!r} must be an inline table {{ value = ..., unit = \"...\", "
@@ -190,6 +202,9 @@ class LegParams:
     q2: float = _p("operating_point", "rad", "finite")
     gear_ratio: float = _p("drive", "-")
     encoder_cpr: int = _p("drive", "count/turn", "count")
+    axis_of_q1: int = _p("drive", "-", "index")
+    axis_of_q2: int = _p("drive", "-", "index")
+    direction: int = _p("drive", "-", "sign")
     source_file: str = ""
 
     def replace(self, **changes) -> "LegParams":
@@ -258,6 +273,58 @@ class OdriveConfig:
     source_file: str = ""
 
 
+@dataclass(frozen=True)
+class PlantParams:
+    """The virtual leg's plant (data/params/plant_*.toml): what the twin simulates.
+
+    The twin's true leg is the base leg set ``leg_set`` with inertias and masses scaled,
+    a payload at the foot, and its own friction (viscous, Coulomb, Stribeck per joint).
+    """
+
+    leg_set: str = _p("leg", "", "string")
+    mechanism: str = _p("leg", "", "string")
+    inertia_scale: float = _p("scale", "-")
+    mass_scale: float = _p("scale", "-")
+    payload_mass: float = _p("scale", "kg", "nonnegative")
+    viscous1: float = _p("friction", "N*m*s/rad", "nonnegative")
+    viscous2: float = _p("friction", "N*m*s/rad", "nonnegative")
+    coulomb1: float = _p("friction", "N*m", "nonnegative")
+    coulomb2: float = _p("friction", "N*m", "nonnegative")
+    stribeck1: float = _p("friction", "N*m", "nonnegative")
+    stribeck2: float = _p("friction", "N*m", "nonnegative")
+    stribeck_velocity: float = _p("friction", "rad/s")
+    coulomb_smoothing: float = _p("friction", "rad/s")
+    gap_min: float = _p("stop", "rad", "nonnegative")
+    stop_stiffness: float = _p("stop", "N*m/rad", "nonnegative")
+    stop_damping: float = _p("stop", "N*m*s/rad", "nonnegative")
+    encoder_noise: float = _p("sensing", "count", "nonnegative")
+    current_noise: float = _p("sensing", "A", "nonnegative")
+    usb_latency: float = _p("sensing", "s", "nonnegative")
+    usb_jitter: float = _p("sensing", "-", "nonnegative")
+    calibration_time: float = _p("sensing", "s", "nonnegative")
+    source_file: str = ""
+
+    def replace(self, **changes) -> "PlantParams":
+        """A copy with some fields changed, e.g. ``plant.replace(payload_mass=0.5)``."""
+        return dataclasses.replace(self, **changes)
+
+    def base_leg(self) -> "LegParams":
+        """The base leg parameter set named by ``leg_set``."""
+        p = Path(self.leg_set)
+        if not p.is_absolute() and p.suffix == ".toml" and self.source_file:
+            p = Path(self.source_file).parent / p
+        return load_leg(p if p.suffix == ".toml" else self.leg_set)
+
+
+def load_plant(name_or_path: str | Path = "default", **overrides) -> PlantParams:
+    """Load a twin plant (``"default"`` -> ``data/params/plant_default.toml``)."""
+    plant = load_dataclass(PlantParams, _resolve(name_or_path, "plant"), overrides)
+    if plant.mechanism not in ("fivebar", "independent"):
+        raise ParameterError(f"{plant.source_file}: field 'leg.mechanism' must be 'fivebar' or "
+                             f"'independent', got {plant.mechanism!r}")
+    return plant
+
+
 def load_leg(name_or_path: str | Path = "thesis", **overrides) -> LegParams:
     """Load leg parameters.
 
@@ -271,6 +338,9 @@ def load_leg(name_or_path: str | Path = "thesis", **overrides) -> LegParams:
     leg = load_dataclass(LegParams, _resolve(name_or_path, "leg"), overrides)
     if leg.lc1 > leg.l1 or leg.lc2 > leg.l2:
         raise ParameterError(f"{leg.source_file}: centre of mass lc1/lc2 lies beyond its link")
+    if {leg.axis_of_q1, leg.axis_of_q2} != {0, 1}:
+        raise ParameterError(f"{leg.source_file}: fields 'drive.axis_of_q1' and "
+                             f"'drive.axis_of_q2' must be 0 and 1 in some order")
     return leg
 
 

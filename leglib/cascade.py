@@ -1,0 +1,59 @@
+"""The ODrive cascade as linear continuous-time models (python-control).
+
+:func:`axis_closed_loop` is one ODrive axis as the firmware runs it, linearized: position P
+-> velocity PI -> current loop (first order at the current-control bandwidth) -> rotor and
+load inertia, with the encoder PLL estimating position and velocity. It is the analytic
+reference the twin is tested against. Motor-side, ODrive units: turns, turn/s, N*m.
+"""
+
+from __future__ import annotations
+
+import math
+
+import control
+import numpy as np
+
+
+def pll_gains(bandwidth: float) -> tuple[float, float]:
+    """The firmware's encoder PLL gains for a bandwidth [rad/s]: kp = 2 bw, ki = kp^2 / 4."""
+    kp = 2.0 * bandwidth
+    return kp, 0.25 * kp * kp
+
+
+def motor_side_inertia(joint_inertia: float, gear_ratio: float) -> float:
+    """Inertia seen by the motor in ODrive units [N*m / (turn/s^2)]: 2 pi J / N^2."""
+    return 2 * math.pi * joint_inertia / gear_ratio ** 2
+
+
+def axis_closed_loop(inertia_turns: float, torque_constant: float, pos_gain: float,
+                     vel_gain: float, vel_integrator_gain: float, current_bandwidth: float = 1000.0,
+                     encoder_bandwidth: float = 1000.0, viscous: float = 0.0) -> control.StateSpace:
+    """Closed loop from position command [turn] to motor position [turn] of one axis.
+
+    Parameters
+    ----------
+    inertia_turns : load + rotor inertia at the motor [N*m/(turn/s^2)] (see
+        :func:`motor_side_inertia`)
+    torque_constant : [N*m/A]
+    pos_gain [(turn/s)/turn], vel_gain [N*m/(turn/s)], vel_integrator_gain [N*m/turn]
+    current_bandwidth, encoder_bandwidth : [rad/s]
+    viscous : motor-side viscous friction [N*m/(turn/s)]
+
+    States: position, velocity, Iq, PLL position, PLL velocity, velocity integrator torque.
+    """
+    J, kt = inertia_turns, torque_constant
+    kp_e, ki_e = pll_gains(encoder_bandwidth)
+    wc = current_bandwidth
+    Kp, Kv, Ki = pos_gain, vel_gain, vel_integrator_gain
+    A = np.array([
+        [0, 1, 0, 0, 0, 0],
+        [0, -viscous / J, kt / J, 0, 0, 0],
+        [0, 0, -wc, -wc * Kv * Kp / kt, -wc * Kv / kt, wc / kt],
+        [kp_e, 0, 0, -kp_e, 1, 0],
+        [ki_e, 0, 0, -ki_e, 0, 0],
+        [0, 0, 0, -Ki * Kp, -Ki, 0],
+    ], dtype=float)
+    B = np.array([[0], [0], [wc * Kv * Kp / kt], [0], [0], [Ki * Kp]], dtype=float)
+    C = np.array([[1, 0, 0, 0, 0, 0]], dtype=float)
+    return control.ss(A, B, C, [[0.0]], states=["pos", "vel", "iq", "pos_est", "vel_est", "integrator"],
+                      inputs=["input_pos"], outputs=["pos"], name="odrive_axis")

@@ -1,0 +1,449 @@
+"""The virtual leg: a compiled batch simulator of ODrive v3.6 + BLDC + belt + five-bar.
+
+One numba kernel, :func:`_run`, advances a *batch* of legs by a number of 8 kHz ticks.
+Per tick and axis it does what the firmware (0.5.x) does: encoder read (quantized at the
+configured CPR, with noise), PLL position/velocity estimator, position P -> velocity PI
+(velocity limit, integrator with the firmware's anti-windup) -> current loop (first-order
+at the current-control bandwidth, current limit, torque constant), fault checks (overspeed,
+current-limit violation, watchdog); then the leg's mechanics (exact five-bar with gravity,
+the plant's viscous, Coulomb and Stribeck friction, the stop between the upper links) by
+semi-implicit Euler.
+
+A single experiment is a batch of one and a sweep a batch of many; both go through the same
+kernel, so they give identical numbers. :class:`Twin` holds the batch state and exposes
+``advance`` and the whole-experiment runners; :mod:`leglib.virtual_odrive` puts the ODrive
+object tree on top of a batch of one.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit, prange
+
+from .drive import AxisMap
+from .model import _fivebar_dynamics, param_vector
+from .params import (LegParams, MotorParams, OdriveConfig, PlantParams, load_motor,
+                     load_odrive_config, load_plant)
+
+TICK_HZ_DEFAULT = 8000.0
+
+# axis modes inside the kernel (control_mode values of the firmware; 0 = not in closed loop)
+MODE_IDLE, MODE_TORQUE, MODE_VELOCITY, MODE_POSITION = 0, 1, 2, 3
+
+# float config per axis: C[b, axis, k]
+(C_POS_GAIN, C_VEL_GAIN, C_VEL_INT_GAIN, C_VEL_LIMIT, C_VEL_TOL, C_CURRENT_LIM, C_KT,
+ C_INPUT_POS, C_INPUT_VEL, C_INPUT_TORQUE, C_WD_TIMEOUT, C_CURRENT_BW, C_ENCODER_BW,
+ C_ABORT_ERROR) = range(14)
+N_CFG = 14
+# float state per axis: AS[b, axis, k]
+S_POS_EST, S_VEL_EST, S_INTEGRATOR, S_IQ, S_WD_TIMER, S_IQ_MEAS = range(6)
+N_AXSTATE = 6
+# int state per axis: AI[b, axis, k]
+I_MODE, I_AXIS_ERR, I_CTRL_ERR, I_MOTOR_ERR, I_COUNTS = range(5)
+N_AXINT = 5
+# firmware error codes (odrive.enums values)
+AXIS_ERROR_MOTOR_FAILED = 0x40
+AXIS_ERROR_CONTROLLER_FAILED = 0x200
+AXIS_ERROR_WATCHDOG_TIMER_EXPIRED = 0x800
+CONTROLLER_ERROR_OVERSPEED = 0x1
+MOTOR_ERROR_CURRENT_LIMIT_VIOLATION = 0x1000
+CURRENT_LIM_MARGIN = 8.0  # A, firmware default motor.config.current_lim_margin
+# leglib's own abort codes (ABORT[b, 1])
+ABORT_NONE, ABORT_POSITION_ERROR, ABORT_NONFINITE = 0, 1, 2
+
+
+# ---------------------------------------------------------------------------------------
+# random numbers: a per-leg xorshift64* stream, so results do not depend on threading
+# ---------------------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def _next_u01(rng, b):
+    x = rng[b]
+    x ^= x >> np.uint64(12)
+    x ^= x << np.uint64(25)
+    x ^= x >> np.uint64(27)
+    rng[b] = x
+    return float((x * np.uint64(2685821657736338717)) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+@njit(cache=True, inline="always")
+def _normal(rng, b):
+    # Irwin-Hall sum of four uniforms, scaled to unit variance: cheap and adequate for noise
+    s = _next_u01(rng, b) + _next_u01(rng, b) + _next_u01(rng, b) + _next_u01(rng, b)
+    return (s - 2.0) * 1.7320508075688772
+
+
+# ---------------------------------------------------------------------------------------
+# the kernel
+# ---------------------------------------------------------------------------------------
+
+@njit(cache=True, parallel=True)
+def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC, rec_every,
+         rec_offset):
+    """Advance every leg of the batch by ``n_ticks`` ticks of ``dt`` seconds.
+
+    X[b] = (q1, dq1, q2, dq2, t); AS, AI, C per axis (see the S_, I_, C_ indices);
+    P[b] the true leg's parameter vector; FR[b] = (visc1, visc2, coul1, coul2, strib1,
+    strib2, v_stribeck, v_smooth, gap_min, k_stop, c_stop, J1, J2); MECH[b] 0 five-bar,
+    1 independent inertias; DRV = (gear_ratio, cpr, direction, q_rest1, q_rest2,
+    joint_of_axis0, encoder_noise, current_noise, true torque constant); TT[b, i, axis] a torque table applied
+    to axes in torque mode, row i = tick // tt_period (ignored when it has no rows);
+    REC[b, k] = (t, counts0, counts1, Iq0, Iq1) every ``rec_every`` ticks from row
+    ``rec_offset``. Returns nothing; everything is updated in place.
+    """
+    B = X.shape[0]
+    N = DRV[0]
+    cpr = DRV[1]
+    dirn = DRV[2]
+    enc_noise = DRV[6]
+    cur_noise = DRV[7]
+    j_of_a0 = int(DRV[5])
+    n_tab = TT.shape[1]
+    n_rec = REC.shape[1]
+    two_pi = 2.0 * math.pi
+    for b in prange(B):
+        tau = np.zeros(2)
+        for k in range(n_ticks):
+            if ABORT[b, 1] == ABORT_NONFINITE:
+                break
+            # ---- record (before the tick, so row 0 is the initial state)
+            if rec_every > 0 and k % rec_every == 0:
+                r = rec_offset + k // rec_every
+                if r < n_rec:
+                    REC[b, r, 0] = X[b, 4]
+                    REC[b, r, 1] = AI[b, 0, I_COUNTS]
+                    REC[b, r, 2] = AI[b, 1, I_COUNTS]
+                    REC[b, r, 3] = AS[b, 0, S_IQ_MEAS]
+                    REC[b, r, 4] = AS[b, 1, S_IQ_MEAS]
+            abort_now = False
+            for a in range(2):
+                j = j_of_a0 if a == 0 else 1 - j_of_a0
+                q = X[b, 2 * j]
+                turns = dirn * (q - DRV[3 + j]) * N / two_pi
+                counts = math.floor(turns * cpr + enc_noise * _normal(RNG, b) + 0.5)
+                AI[b, a, I_COUNTS] = np.int64(counts)
+                # PLL estimator (firmware: kp = 2 bw, ki = kp^2 / 4)
+                kp = 2.0 * C[b, a, C_ENCODER_BW]
+                ki = 0.25 * kp * kp
+                pe = AS[b, a, S_POS_EST] + dt * AS[b, a, S_VEL_EST]
+                delta = counts / cpr - pe
+                pe += dt * kp * delta
+                ve = AS[b, a, S_VEL_EST] + dt * ki * delta
+                if abs(ve) < 0.5 * dt * ki / cpr:
+                    ve = 0.0
+                AS[b, a, S_POS_EST] = pe
+                AS[b, a, S_VEL_EST] = ve
+                mode = AI[b, a, I_MODE]
+                if mode != MODE_IDLE and C[b, a, C_WD_TIMEOUT] > 0.0:
+                    AS[b, a, S_WD_TIMER] += dt
+                    if AS[b, a, S_WD_TIMER] > C[b, a, C_WD_TIMEOUT]:
+                        AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
+                        mode = MODE_IDLE
+                vel_limit = C[b, a, C_VEL_LIMIT]
+                if mode != MODE_IDLE and abs(ve) > vel_limit * C[b, a, C_VEL_TOL]:
+                    AI[b, a, I_CTRL_ERR] |= CONTROLLER_ERROR_OVERSPEED
+                    AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_CONTROLLER_FAILED
+                    mode = MODE_IDLE
+                if mode == MODE_POSITION and C[b, a, C_ABORT_ERROR] > 0.0:
+                    if abs(C[b, a, C_INPUT_POS] - pe) > C[b, a, C_ABORT_ERROR]:
+                        abort_now = True
+                if mode == MODE_IDLE:
+                    AI[b, a, I_MODE] = MODE_IDLE
+                    AS[b, a, S_IQ] = 0.0
+                    AS[b, a, S_INTEGRATOR] = 0.0
+                    AS[b, a, S_IQ_MEAS] = 0.0
+                    tau[j] = 0.0
+                    continue
+                kt = C[b, a, C_KT]
+                vel_gain = C[b, a, C_VEL_GAIN]
+                t_lim = C[b, a, C_CURRENT_LIM] * kt
+                verr = 0.0
+                if mode == MODE_TORQUE:
+                    if n_tab > 0:
+                        row = min(k // tt_period, n_tab - 1)
+                        torque = TT[b, row, a]
+                    else:
+                        torque = C[b, a, C_INPUT_TORQUE]
+                    # firmware's enable_torque_mode_vel_limit
+                    t_max = (vel_limit - ve) * vel_gain
+                    t_min = (-vel_limit - ve) * vel_gain
+                    torque = min(max(torque, t_min), t_max)
+                else:
+                    if mode == MODE_POSITION:
+                        vel_des = C[b, a, C_POS_GAIN] * (C[b, a, C_INPUT_POS] - pe) + C[b, a, C_INPUT_VEL]
+                    else:
+                        vel_des = C[b, a, C_INPUT_VEL]
+                    vel_des = min(max(vel_des, -vel_limit), vel_limit)
+                    verr = vel_des - ve
+                    torque = vel_gain * verr + AS[b, a, S_INTEGRATOR] + C[b, a, C_INPUT_TORQUE]
+                limited = False
+                if torque > t_lim:
+                    torque = t_lim
+                    limited = True
+                elif torque < -t_lim:
+                    torque = -t_lim
+                    limited = True
+                if mode != MODE_TORQUE:
+                    if limited:
+                        AS[b, a, S_INTEGRATOR] *= 0.99
+                    else:
+                        AS[b, a, S_INTEGRATOR] += C[b, a, C_VEL_INT_GAIN] * dt * verr
+                alpha = 1.0 - math.exp(-C[b, a, C_CURRENT_BW] * dt)
+                iq = AS[b, a, S_IQ] + alpha * (torque / kt - AS[b, a, S_IQ])
+                AS[b, a, S_IQ] = iq
+                iq_meas = iq + cur_noise * _normal(RNG, b)
+                AS[b, a, S_IQ_MEAS] = iq_meas
+                if abs(iq_meas) > C[b, a, C_CURRENT_LIM] + CURRENT_LIM_MARGIN:
+                    AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_CURRENT_LIMIT_VIOLATION
+                    AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
+                    AI[b, a, I_MODE] = MODE_IDLE
+                    AS[b, a, S_IQ] = 0.0
+                    iq = 0.0
+                # the motor's own torque constant makes the torque; the configured one only
+                # converts the torque command to a current
+                tau[j] = dirn * N * DRV[8] * iq
+            if abort_now:
+                for a in range(2):
+                    AI[b, a, I_MODE] = MODE_IDLE
+                    AS[b, a, S_IQ] = 0.0
+                    AS[b, a, S_INTEGRATOR] = 0.0
+                tau[0] = 0.0
+                tau[1] = 0.0
+                if ABORT[b, 1] == ABORT_NONE:
+                    ABORT[b, 0] = k
+                    ABORT[b, 1] = ABORT_POSITION_ERROR
+            # ---- mechanics
+            q1, dq1, q2, dq2 = X[b, 0], X[b, 1], X[b, 2], X[b, 3]
+            if MECH[b] == 0:
+                r5 = _fivebar_dynamics(q1, q2, dq1, dq2, P[b])
+                d11, d12, d22, b1, b2 = r5[0], r5[1], r5[2], r5[3], r5[4]
+            else:
+                d11, d12, d22, b1, b2 = FR[b, 11], 0.0, FR[b, 12], 0.0, 0.0
+            f1 = FR[b, 0] * dq1 + (FR[b, 2] + FR[b, 4] * math.exp(-(dq1 / FR[b, 6]) ** 2)) * math.tanh(dq1 / FR[b, 7])
+            f2 = FR[b, 1] * dq2 + (FR[b, 3] + FR[b, 5] * math.exp(-(dq2 / FR[b, 6]) ** 2)) * math.tanh(dq2 / FR[b, 7])
+            t1 = tau[0] - b1 - f1
+            t2 = tau[1] - b2 - f2
+            if MECH[b] == 0:
+                gap = q2 - q1
+                if gap < FR[b, 8]:
+                    push = FR[b, 9] * (FR[b, 8] - gap) - FR[b, 10] * (dq2 - dq1)
+                    if push > 0.0:
+                        t1 -= push
+                        t2 += push
+            det = d11 * d22 - d12 * d12
+            a1 = (d22 * t1 - d12 * t2) / det
+            a2 = (-d12 * t1 + d11 * t2) / det
+            if not (math.isfinite(a1) and math.isfinite(a2)):
+                ABORT[b, 0] = k
+                ABORT[b, 1] = ABORT_NONFINITE
+                for a in range(2):
+                    AI[b, a, I_MODE] = MODE_IDLE
+                break
+            dq1 += a1 * dt
+            dq2 += a2 * dt
+            X[b, 0] = q1 + dq1 * dt
+            X[b, 1] = dq1
+            X[b, 2] = q2 + dq2 * dt
+            X[b, 3] = dq2
+            X[b, 4] += dt
+
+
+# ---------------------------------------------------------------------------------------
+# the batch simulator
+# ---------------------------------------------------------------------------------------
+
+def true_leg(plant: PlantParams) -> LegParams:
+    """The twin's hidden leg: the base set with scaled masses/inertias and the payload
+    folded into link 4 as a point mass at the foot (exact for a mass on the foot joint)."""
+    leg = plant.base_leg()
+    s, m = plant.inertia_scale, plant.mass_scale
+    m4 = leg.m4 * m
+    lc4 = leg.lc4
+    I4 = leg.I4 * s
+    mp = plant.payload_mass
+    if mp > 0:
+        lc4_new = (m4 * lc4 + mp * leg.l4) / (m4 + mp)
+        I4 = I4 + m4 * (lc4_new - lc4) ** 2 + mp * (leg.l4 - lc4_new) ** 2
+        m4, lc4 = m4 + mp, lc4_new
+    return leg.replace(m1=leg.m1 * m, m2=leg.m2 * m, m3=leg.m3 * m, m4=m4, lc4=lc4,
+                       I1=leg.I1 * s, I2=leg.I2 * s, I3=leg.I3 * s, I4=I4,
+                       Jd1=leg.Jd1 * s, Jd2=leg.Jd2 * s,
+                       c11=plant.viscous1, c12=0.0, c21=0.0, c22=plant.viscous2,
+                       coulomb1=plant.coulomb1, coulomb2=plant.coulomb2)
+
+
+def seeds_for(seed: int, keys) -> np.ndarray:
+    """Per-leg RNG states derived from ``seed`` and each leg's key (content, not order), so
+    a point simulated alone or inside a batch sees the same noise."""
+    out = np.empty(len(keys), dtype=np.uint64)
+    for i, key in enumerate(keys):
+        words = [int(seed) & 0xFFFFFFFF] + [int(round(float(v) * 1e6)) & 0xFFFFFFFF for v in key]
+        out[i] = np.random.SeedSequence(words).generate_state(1, np.uint64)[0] | np.uint64(1)
+    return out
+
+
+@dataclass
+class TwinState:
+    """Everything the kernel mutates, for a batch of B legs (arrays, see :func:`_run`)."""
+
+    X: np.ndarray
+    AS: np.ndarray
+    AI: np.ndarray
+    C: np.ndarray
+    RNG: np.ndarray
+    ABORT: np.ndarray
+
+    def copy(self) -> "TwinState":
+        return TwinState(*(a.copy() for a in (self.X, self.AS, self.AI, self.C, self.RNG, self.ABORT)))
+
+    def take(self, idx) -> "TwinState":
+        return TwinState(*(a[idx].copy() for a in (self.X, self.AS, self.AI, self.C, self.RNG, self.ABORT)))
+
+    @property
+    def batch(self) -> int:
+        return self.X.shape[0]
+
+
+class Twin:
+    """Batch simulator of B virtual legs sharing one plant and ODrive configuration.
+
+    Parameters
+    ----------
+    plant : PlantParams or name, the simulated physical leg (default ``"default"``)
+    config : OdriveConfig or name, the ODrive configuration (default Listing 7.1)
+    batch : number of legs
+    seed : base seed of the noise streams
+    """
+
+    def __init__(self, plant: PlantParams | str = "default", config: OdriveConfig | str = "thesis",
+                 batch: int = 1, seed: int = 0, noise: bool = True, motor: MotorParams | str = "mn5212"):
+        self.plant = load_plant(plant) if isinstance(plant, str) else plant
+        self.motor = load_motor(motor) if isinstance(motor, str) else motor
+        self.config = load_odrive_config(config) if isinstance(config, str) else config
+        self.nominal_leg = self.plant.base_leg()
+        self.leg = true_leg(self.plant)
+        self.axes = AxisMap.from_leg(self.nominal_leg)
+        self.seed = int(seed)
+        self.noise = bool(noise)
+        self.dt = 1.0 / self.config.loop_frequency
+        self.P = param_vector(self.leg)
+        leg = self.leg
+        J1 = leg.I1 + leg.Jd1 + leg.m1 * leg.lc1 ** 2
+        J2 = leg.I2 + leg.Jd2 + leg.m2 * leg.lc2 ** 2
+        p = self.plant
+        self.FR = np.array([p.viscous1, p.viscous2, p.coulomb1, p.coulomb2, p.stribeck1, p.stribeck2,
+                            p.stribeck_velocity, p.coulomb_smoothing, p.gap_min, p.stop_stiffness,
+                            p.stop_damping, J1, J2])
+        self.mech = 0 if p.mechanism == "fivebar" else 1
+        ax = self.axes
+        motor = self.motor
+        self.DRV = np.array([ax.gear_ratio, ax.cpr, ax.direction, ax.q_rest[0], ax.q_rest[1],
+                             ax.joint_of_axis(0), p.encoder_noise if noise else 0.0,
+                             p.current_noise if noise else 0.0, motor.torque_constant])
+        self.state = self._initial_state(batch)
+
+    # -- state -----------------------------------------------------------------------
+    def _initial_state(self, batch: int) -> TwinState:
+        X = np.zeros((batch, 5))
+        X[:, 0], X[:, 2] = self.axes.q_rest
+        C = np.zeros((batch, 2, N_CFG))
+        cfg = self.config
+        C[:, :, C_POS_GAIN] = 20.0       # firmware defaults
+        C[:, :, C_VEL_GAIN] = 1.0 / 6.0
+        C[:, :, C_VEL_INT_GAIN] = 1.0 / 3.0
+        C[:, :, C_VEL_LIMIT] = cfg.vel_limit
+        C[:, :, C_VEL_TOL] = cfg.vel_limit_tolerance
+        C[:, :, C_CURRENT_LIM] = cfg.current_lim
+        C[:, :, C_KT] = cfg.torque_constant
+        C[:, :, C_CURRENT_BW] = cfg.current_control_bandwidth
+        C[:, :, C_ENCODER_BW] = cfg.encoder_bandwidth
+        st = TwinState(X=X, AS=np.zeros((batch, 2, N_AXSTATE)), AI=np.zeros((batch, 2, N_AXINT), np.int64),
+                       C=C, RNG=seeds_for(self.seed, [(i,) for i in range(batch)]),
+                       ABORT=np.zeros((batch, 2), np.int64))
+        return st
+
+    def rest_state(self) -> TwinState:
+        """A copy of the state after the idle leg has settled on its stop (cached)."""
+        if not hasattr(self, "_rest"):
+            st = self._initial_state(1)
+            self.run(st, seconds=2.0)
+            st.X[:, 1] = 0.0
+            st.X[:, 3] = 0.0
+            st.X[:, 4] = 0.0
+            # encoder and estimator agree with the settled leg
+            self.run(st, ticks=int(0.05 / self.dt))
+            st.X[:, 4] = 0.0
+            self._rest = st
+        return self._rest.copy()
+
+    # -- running ---------------------------------------------------------------------
+    def run(self, st: TwinState, seconds: float | None = None, ticks: int | None = None,
+            torque_table: np.ndarray | None = None, table_period: float | None = None,
+            record_every: int = 0, record: np.ndarray | None = None, record_offset: int = 0) -> None:
+        """Advance ``st`` in place (compiled kernel; no Python per tick)."""
+        n = int(ticks) if ticks is not None else int(round(seconds / self.dt))
+        if n <= 0:
+            return
+        tt = np.zeros((st.batch, 0, 2)) if torque_table is None else np.ascontiguousarray(torque_table, float)
+        tt_period = 1 if table_period is None else max(1, int(round(table_period / self.dt)))
+        rec = np.zeros((st.batch, 0, 5)) if record is None else record
+        _run(n, self.dt, st.X, st.AS, st.AI, st.C, np.ascontiguousarray(np.broadcast_to(self.P, (st.batch, self.P.size))),
+             np.ascontiguousarray(np.broadcast_to(self.FR, (st.batch, self.FR.size))),
+             np.full(st.batch, self.mech, np.int64), self.DRV, st.RNG, st.ABORT, tt, tt_period,
+             rec, int(record_every), int(record_offset))
+
+    def step_batch(self, gains: np.ndarray, step_turns: float = 0.4, duration: float = 1.5,
+                   sample_period: float = 0.002, vel_limit: float | None = None,
+                   abort_error_turns: float | None = None, start: TwinState | None = None) -> dict:
+        """Position step responses of Listing 7.4 for each row of ``gains``, all at once.
+
+        Parameters
+        ----------
+        gains : (B, 3) pos_gain [(turn/s)/turn], vel_gain [N*m/(turn/s)],
+            vel_integrator_gain [N*m/(turn/s)/s]
+        step_turns : motor step; the axis driving q1 gets +step, the other -step [turn]
+        duration : response length [s]; sample_period : recording period [s]
+        vel_limit : velocity limit during the step [turn/s] (default: config.step_vel_limit)
+        abort_error_turns : abort (both axes IDLE) when |input_pos - pos_estimate| exceeds it
+            (default 2 * |step|)
+        start : the state every leg starts from (default: at rest on its stop)
+
+        Returns
+        -------
+        dict with ``t`` (n,), ``counts`` (B, n, 2) per axis, ``iq`` (B, n, 2) [A],
+        ``abort_tick`` (B,) (-1: completed), ``abort_reason`` (B,), axis errors (B, 2).
+        """
+        gains = np.atleast_2d(np.asarray(gains, dtype=float))
+        B = gains.shape[0]
+        base = self.rest_state() if start is None else start
+        st = base.take(np.zeros(B, dtype=int))
+        st.RNG[:] = seeds_for(self.seed, [tuple(g) + (step_turns, duration) for g in gains])
+        st.ABORT[:] = (-1, ABORT_NONE)
+        st.X[:, 4] = 0.0
+        vl = self.config.step_vel_limit if vel_limit is None else vel_limit
+        abort = 2.0 * abs(step_turns) if abort_error_turns is None else abort_error_turns
+        a_q1 = self.axes.axis_of_joint[0]
+        for a in range(2):
+            sign = 1.0 if a == a_q1 else -1.0
+            st.C[:, a, C_POS_GAIN] = gains[:, 0]
+            st.C[:, a, C_VEL_GAIN] = gains[:, 1]
+            st.C[:, a, C_VEL_INT_GAIN] = gains[:, 2]
+            st.C[:, a, C_VEL_LIMIT] = vl
+            st.C[:, a, C_INPUT_VEL] = 0.0
+            st.C[:, a, C_INPUT_TORQUE] = 0.0
+            st.C[:, a, C_INPUT_POS] = st.AS[:, a, S_POS_EST] + sign * step_turns
+            st.C[:, a, C_ABORT_ERROR] = abort
+            st.AI[:, a, I_MODE] = MODE_POSITION
+            st.AS[:, a, S_INTEGRATOR] = 0.0
+        every = max(1, int(round(sample_period / self.dt)))
+        n_ticks = int(round(duration / self.dt))
+        n_rec = (n_ticks + every - 1) // every
+        rec = np.zeros((B, n_rec, 5))
+        self.run(st, ticks=n_ticks, record_every=every, record=rec)
+        return {"t": rec[0, :, 0].copy(), "counts": rec[:, :, 1:3].copy(), "iq": rec[:, :, 3:5].copy(),
+                "abort_tick": np.where(st.ABORT[:, 1] != ABORT_NONE, st.ABORT[:, 0], -1),
+                "abort_reason": st.ABORT[:, 1].copy(), "axis_error": st.AI[:, :, I_AXIS_ERR].copy(),
+                "final": st}

@@ -1,0 +1,194 @@
+"""The virtual leg: firmware-like behaviour, analytic cascade, batch == single, faults."""
+
+import time
+
+import control
+import numpy as np
+import pytest
+
+from leglib import cascade
+from leglib import twin as T
+from leglib import virtual_odrive as V
+from leglib.params import load_plant
+
+
+def _frictionless_single_axis():
+    return load_plant("default", viscous1=0.0, viscous2=0.0, coulomb1=0.0, coulomb2=0.0).replace(
+        mechanism="independent")
+
+
+@pytest.mark.parametrize("gains", [(20, 0.05, 0.1), (50, 0.02, 0.05), (30, 0.1, 0.5)])
+def test_single_axis_matches_analytic_cascade(gains):
+    tw = T.Twin(_frictionless_single_axis(), noise=False)
+    a_q1 = tw.axes.axis_of_joint[0]
+    step = 0.05
+    out = tw.step_batch([gains], step_turns=step, duration=0.6, sample_period=0.0005)
+    t = out["t"]
+    pos = out["counts"][0, :, a_q1] / tw.axes.cpr
+    sys = cascade.axis_closed_loop(cascade.motor_side_inertia(tw.FR[11], tw.axes.gear_ratio),
+                                   tw.motor.torque_constant, *gains,
+                                   current_bandwidth=tw.config.current_control_bandwidth,
+                                   encoder_bandwidth=tw.config.encoder_bandwidth)
+    ref = control.forced_response(sys, t, np.full(t.size, step)).outputs
+    assert np.max(np.abs(pos - ref)) < 0.02 * step
+    assert np.ptp(pos) > 0.9 * step  # it really moved
+
+
+def test_batch_gives_the_same_numbers_as_single_points():
+    tw = T.Twin(seed=7)
+    grid = np.array([[20, 0.02, 0.01], [50, 0.046, 0.001], [35, 0.1, 0.05]])
+    batch = tw.step_batch(grid)
+    for i, g in enumerate(grid):
+        single = tw.step_batch([g])
+        np.testing.assert_array_equal(single["counts"][0], batch["counts"][i])
+
+
+def test_seeded_noise_and_quantization():
+    a = T.Twin(seed=1).step_batch([[50, 0.046, 0.001]])["counts"]
+    b = T.Twin(seed=1).step_batch([[50, 0.046, 0.001]])["counts"]
+    c = T.Twin(seed=2).step_batch([[50, 0.046, 0.001]])["counts"]
+    np.testing.assert_array_equal(a, b)
+    assert np.any(a != c)
+    assert np.all(a == np.round(a))  # encoder counts are integers
+
+
+def test_plant_differs_from_nominal_model():
+    tw = T.Twin()
+    assert tw.leg.c11 != tw.nominal_leg.c11 and tw.leg.Jd1 != tw.nominal_leg.Jd1
+    assert tw.leg.coulomb1 > 0
+
+
+def test_payload_moves_the_leg_differently():
+    light = T.Twin().step_batch([[50, 0.046, 0.001]])["counts"]
+    heavy = T.Twin(load_plant("default", payload_mass=0.5)).step_batch([[50, 0.046, 0.001]])["counts"]
+    assert np.max(np.abs(light - heavy)) > 20
+
+
+@pytest.fixture
+def odrv():
+    dev = V.VirtualODrive(seed=0)
+    for a in (dev.axis0, dev.axis1):
+        a.encoder.config.cpr = 4000
+        a.motor.config.pole_pairs = 11
+    return dev
+
+
+def _calibrate(odrv):
+    for a in (odrv.axis0, odrv.axis1):
+        a.requested_state = V.AXIS_STATE_FULL_CALIBRATION_SEQUENCE
+    odrv.sleep(odrv.twin.plant.calibration_time + 0.1)
+
+
+def test_object_tree_is_strict(odrv):
+    with pytest.raises(AttributeError, match="no attribute 'pos_gian'"):
+        odrv.axis0.controller.config.pos_gian = 3
+    with pytest.raises(AttributeError):
+        odrv.axis0.encoder.pos_estimate_typo
+    with pytest.raises(AttributeError, match="read-only"):
+        odrv.axis0.encoder.pos_estimate = 1.0
+    with pytest.raises(TypeError):
+        odrv.axis0.controller.config.pos_gain = "fast"
+    odrv.axis0.controller.config.pos_gain = 33
+    assert odrv.axis0.controller.config.pos_gain == 33.0
+    assert odrv.fw_version_minor == 5 and odrv.config.brake_resistance == pytest.approx(2.05)
+
+
+def test_state_machine_calibration_takes_time_and_gates_closed_loop(odrv):
+    odrv.axis0.requested_state = V.AXIS_STATE_CLOSED_LOOP_CONTROL
+    assert odrv.axis0.current_state == V.AXIS_STATE_IDLE
+    assert odrv.axis0.error & V.AXIS_ERROR_INVALID_STATE
+    odrv.axis0.error = 0
+    odrv.axis0.requested_state = V.AXIS_STATE_FULL_CALIBRATION_SEQUENCE
+    assert odrv.axis0.current_state == V.AXIS_STATE_MOTOR_CALIBRATION
+    odrv.sleep(0.8 * odrv.twin.plant.calibration_time)
+    assert odrv.axis0.current_state == V.AXIS_STATE_ENCODER_OFFSET_CALIBRATION
+    odrv.sleep(0.3 * odrv.twin.plant.calibration_time)
+    assert odrv.axis0.current_state == V.AXIS_STATE_IDLE and odrv.axis0.motor.is_calibrated
+    odrv.axis0.requested_state = V.AXIS_STATE_CLOSED_LOOP_CONTROL
+    assert odrv.axis0.current_state == V.AXIS_STATE_CLOSED_LOOP_CONTROL
+
+
+def test_wrong_cpr_fails_calibration():
+    odrv = V.VirtualODrive()
+    odrv.axis0.encoder.config.cpr = 8192  # the encoder has 4000
+    odrv.axis0.motor.config.pole_pairs = 11
+    odrv.axis0.requested_state = V.AXIS_STATE_FULL_CALIBRATION_SEQUENCE
+    odrv.sleep(odrv.twin.plant.calibration_time + 0.1)
+    assert odrv.axis0.encoder.error & V.ENCODER_ERROR_CPR_POLEPAIRS_MISMATCH
+    assert not odrv.axis0.motor.is_calibrated
+
+
+def test_watchdog_trips_when_not_fed(odrv):
+    _calibrate(odrv)
+    ax = odrv.axis1
+    ax.config.watchdog_timeout = 0.1
+    ax.config.enable_watchdog = True
+    ax.requested_state = V.AXIS_STATE_CLOSED_LOOP_CONTROL
+    for _ in range(10):
+        odrv.sleep(0.05)
+        ax.watchdog_feed()
+    assert ax.current_state == V.AXIS_STATE_CLOSED_LOOP_CONTROL
+    odrv.sleep(0.2)
+    assert ax.current_state == V.AXIS_STATE_IDLE
+    assert ax.error & T.AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
+
+
+def test_overspeed_drops_axis_to_idle(odrv):
+    _calibrate(odrv)
+    ax = odrv.axis1
+    ax.controller.config.vel_limit = 12.0
+    ax.controller.config.pos_gain = 50.0
+    ax.controller.config.vel_gain = 0.05
+    ax.requested_state = V.AXIS_STATE_CLOSED_LOOP_CONTROL
+    ax.controller.input_pos = ax.encoder.pos_estimate + 0.4
+    odrv.sleep(0.03)
+    assert abs(ax.encoder.vel_estimate) > 1.0
+    ax.controller.config.vel_limit = 0.5
+    odrv.sleep(0.01)
+    assert ax.current_state == V.AXIS_STATE_IDLE
+    assert ax.controller.error & T.CONTROLLER_ERROR_OVERSPEED
+    assert ax.error & T.AXIS_ERROR_CONTROLLER_FAILED
+
+
+def test_current_limit_violation_sets_motor_error():
+    odrv = V.VirtualODrive(plant=load_plant("default", current_noise=8.0))
+    for a in (odrv.axis0, odrv.axis1):
+        a.encoder.config.cpr = 4000
+        a.motor.config.pole_pairs = 11
+    _calibrate(odrv)
+    odrv.axis0.motor.config.current_lim = 1.0
+    odrv.axis0.requested_state = V.AXIS_STATE_CLOSED_LOOP_CONTROL
+    odrv.sleep(0.05)
+    assert odrv.axis0.motor.error & T.MOTOR_ERROR_CURRENT_LIMIT_VIOLATION
+    assert odrv.axis0.current_state == V.AXIS_STATE_IDLE
+
+
+def test_virtual_clock_is_fast_and_realtime_mode_paces():
+    odrv = V.VirtualODrive()
+    t0 = time.monotonic()
+    odrv.sleep(1.5)
+    assert time.monotonic() - t0 < 0.5
+    rt = V.VirtualODrive(realtime=True)
+    t0 = time.monotonic()
+    rt.sleep(0.2)
+    assert time.monotonic() - t0 >= 0.19
+    assert rt.time >= 0.2 - 1e-9
+
+
+def test_each_transaction_costs_latency(odrv):
+    t0 = odrv.time
+    for _ in range(100):
+        odrv.axis0.encoder.shadow_count
+    lat = odrv.twin.plant.usb_latency
+    assert 80 * lat < odrv.time - t0 < 120 * lat
+
+
+def test_firmware_06_tree():
+    odrv = V.VirtualODrive(firmware="0.6")
+    assert odrv.fw_version_minor == 6
+    odrv.axis0.pos_estimate
+    odrv.axis0.config.motor.current_soft_max = 12.0
+    with pytest.raises(AttributeError):
+        odrv.axis0.encoder
+    with pytest.raises(AttributeError):
+        odrv.axis0.motor.config
