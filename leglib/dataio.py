@@ -122,6 +122,39 @@ def write_measurement(out_dir: str | Path, t, angle1_deg, angle2_deg, meta: dict
     return path
 
 
+def write_table(path: str | Path, data) -> Path:
+    """Write a numeric table as CSV atomically (never overwriting)."""
+    path = Path(path)
+    if path.exists():
+        raise FileExistsError(f"{path}: exists; not overwriting")
+    _atomic_write(path, lambda fh: np.savetxt(fh, np.asarray(data, dtype=float), fmt="%.6f", delimiter=","))
+    return path
+
+
+def read_table(path: str | Path, columns: int) -> np.ndarray:
+    """Read a numeric CSV with ``columns`` columns; MeasurementError naming file and line."""
+    path = Path(path)
+    if not path.exists():
+        raise MeasurementError(f"{path}: file not found")
+    rows = []
+    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        parts = line.split(",")
+        if len(parts) != columns:
+            raise MeasurementError(f"{path}:{lineno}: expected {columns} columns, got {len(parts)}")
+        try:
+            vals = [float(p) for p in parts]
+        except ValueError:
+            raise MeasurementError(f"{path}:{lineno}: not a number in {line!r}") from None
+        if not all(math.isfinite(v) for v in vals):
+            raise MeasurementError(f"{path}:{lineno}: NaN or infinite value")
+        rows.append(vals)
+    if not rows:
+        raise MeasurementError(f"{path}: no data rows")
+    return np.array(rows)
+
+
 def _json_default(o):
     if isinstance(o, (np.floating, np.integer)):
         return o.item()

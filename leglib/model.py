@@ -26,7 +26,7 @@ from .params import LegParams
 
 MODELS = ("fivebar", "parallelogram")
 STATE_NAMES = ("q1", "dq1", "q2", "dq2")
-COULOMB_VELOCITY = 1e-3  # rad/s: width of the smooth (tanh) Coulomb term
+COULOMB_VELOCITY = 1e-3  # rad/s: default width of the smooth (tanh) Coulomb term
 
 
 def param_vector(leg: LegParams) -> np.ndarray:
@@ -142,10 +142,39 @@ def _parallelogram_dynamics(q1, q2, dq1, dq2, P):
 
 @njit(cache=True)
 def _friction(dq1, dq2, F):
-    """Joint friction torques; F = (c11, c12, c21, c22, coulomb1, coulomb2)."""
-    f1 = F[0] * dq1 + F[1] * dq2 + F[4] * math.tanh(dq1 / 1e-3)
-    f2 = F[2] * dq1 + F[3] * dq2 + F[5] * math.tanh(dq2 / 1e-3)
-    return f1, f2
+    """Joint friction torques. F = (c11, c12, c21, c22, coulomb1, coulomb2, v_smooth[,
+    stribeck1, stribeck2, v_stribeck]): viscous matrix, Coulomb smoothed as
+    tanh(v / v_smooth), optional Stribeck excess times exp(-(v / v_stribeck)^2)."""
+    f1 = F[0] * dq1 + F[1] * dq2
+    f2 = F[2] * dq1 + F[3] * dq2
+    c1, c2 = F[4], F[5]
+    if F.size > 7:
+        c1 += F[7] * math.exp(-(dq1 / F[9]) ** 2)
+        c2 += F[8] * math.exp(-(dq2 / F[9]) ** 2)
+    return f1 + c1 * math.tanh(dq1 / F[6]), f2 + c2 * math.tanh(dq2 / F[6])
+
+
+@njit(cache=True)
+def _simulate_table(model_id, P, F, x0, tau, table_dt, substeps, out):
+    """Semi-implicit Euler under a zero-order-held torque table.
+
+    x0 = (q1, dq1, q2, dq2); tau (N, 2) joint torques, one row per ``table_dt``; out (N, 4)
+    receives the state at the start of each row. Returns the number of rows simulated
+    (less than N when the model left its valid configuration).
+    """
+    q1, dq1, q2, dq2 = x0[0], x0[1], x0[2], x0[3]
+    h = table_dt / substeps
+    for i in range(tau.shape[0]):
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = q1, dq1, q2, dq2
+        for _ in range(substeps):
+            a1, a2 = _accel(model_id, q1, q2, dq1, dq2, tau[i, 0], tau[i, 1], P, F)
+            if not (math.isfinite(a1) and math.isfinite(a2)):
+                return i
+            dq1 += a1 * h
+            dq2 += a2 * h
+            q1 += dq1 * h
+            q2 += dq2 * h
+    return tau.shape[0]
 
 
 @njit(cache=True)
@@ -198,9 +227,37 @@ def _flat(*arrays):
     return b[0].shape, [np.ascontiguousarray(x).ravel() for x in b]
 
 
-def friction_vector(leg: LegParams, scale: float = 1.0) -> np.ndarray:
-    """F = (c11, c12, c21, c22, coulomb1, coulomb2) as the kernels take it."""
-    return scale * np.array([leg.c11, leg.c12, leg.c21, leg.c22, leg.coulomb1, leg.coulomb2])
+def friction_vector(leg: LegParams, scale: float = 1.0, v_smooth: float = COULOMB_VELOCITY,
+                    stribeck=None) -> np.ndarray:
+    """F as the kernels take it (see ``_friction``): the leg's viscous matrix and Coulomb
+    terms times ``scale``, the Coulomb smoothing velocity, and optionally
+    ``stribeck = (stribeck1, stribeck2, v_stribeck)``."""
+    F = [scale * v for v in (leg.c11, leg.c12, leg.c21, leg.c22, leg.coulomb1, leg.coulomb2)]
+    F.append(v_smooth)
+    if stribeck is not None:
+        F.extend(stribeck)
+    return np.array(F, dtype=float)
+
+
+def simulate_torque_table(leg: LegParams, x0, tau, table_dt: float, substeps: int = 4,
+                          model: str = "fivebar", friction=None) -> np.ndarray:
+    """Simulate the leg under a torque table (compiled; fast enough for fitting loops).
+
+    Parameters
+    ----------
+    x0 : (4,) initial state (q1, dq1, q2, dq2)
+    tau : (N, 2) joint torques [N*m], row i held over [i, i+1) * table_dt
+    friction : None (the leg's own) or a friction vector (see :func:`friction_vector`;
+        9 entries add Stribeck terms)
+    Returns (N, 4) states at the start of each row; rows after a singularity are NaN.
+    """
+    mid = MODELS.index(_check_model(model))
+    tau = np.ascontiguousarray(tau, dtype=float)
+    F = friction_vector(leg) if friction is None else np.asarray(friction, dtype=float)
+    out = np.full((tau.shape[0], 4), np.nan)
+    _simulate_table(mid, param_vector(leg), F, np.asarray(x0, dtype=float), tau, float(table_dt),
+                    int(substeps), out)
+    return out
 
 
 # ---------------------------------------------------------------------------------------

@@ -625,6 +625,65 @@ class TorqueRun:
     iq: np.ndarray
     rate_hz: float
     meta: dict = field(default_factory=dict)
+    table: np.ndarray | None = None
+    period: float = 0.002
+    t_cmd: np.ndarray | None = None   # (n, 2) when each joint's torque was written [s]
+    t_read: np.ndarray | None = None  # (n, 2) when each joint's angle was read [s]
+
+    def applied_torque(self, t_grid, bandwidth: float | None = None) -> np.ndarray:
+        """Joint torque (M, 2) [N*m] at ``t_grid`` as the motors produced it: each written
+        value held from its write time, through the current loop's first-order lag
+        (``bandwidth`` [rad/s], default the run's configuration). Without write times
+        (thesis files) the table is assumed to apply on schedule."""
+        t_grid = np.asarray(t_grid, dtype=float)
+        if self.t_cmd is not None and len(self.t_cmd) == len(self.tau):
+            u = np.empty((t_grid.size, 2))
+            for j in (0, 1):
+                k = np.searchsorted(self.t_cmd[:, j], t_grid, side="right") - 1
+                u[:, j] = np.where(k >= 0, self.tau[np.clip(k, 0, None), j], 0.0)
+        else:
+            rows = np.clip((t_grid / self.period).astype(int), 0, len(self.table) - 1)
+            u = self.table[rows]
+        wc = bandwidth or self.meta.get("current_control_bandwidth")
+        if not wc:
+            return u
+        y = np.empty_like(u)
+        acc = np.zeros(2)
+        for i in range(len(t_grid)):
+            h = t_grid[i] - t_grid[i - 1] if i else 0.0
+            acc = acc + (1 - math.exp(-wc * h)) * (u[i] - acc)
+            y[i] = acc
+        return y
+
+    def write(self, out_dir, when=None) -> Path:
+        """Write as Listing 7.3 did: ``<stamp>_positions.csv`` (time, q1, q2 [deg]) with a
+        JSON sidecar, and ``<stamp>_torque.csv`` (time, tau1, tau2 [N*m]) of the table."""
+        meta = {"experiment": "torque_playback", "period_s": self.period, "rate_hz": self.rate_hz,
+                **self.meta}
+        for name in ("t_cmd", "t_read"):
+            value = getattr(self, name)
+            if value is not None:
+                meta[name] = np.round(value, 7).tolist()
+        path = dataio.write_measurement(out_dir, self.t, np.degrees(self.q1), np.degrees(self.q2),
+                                        meta, when=when)
+        if self.table is not None:
+            tt = self.period * np.arange(len(self.table))
+            dataio.write_table(path.with_name(path.name.replace("_positions.csv", "_torque.csv")),
+                               np.column_stack([tt, self.table]))
+        return path
+
+    @classmethod
+    def read(cls, path) -> "TorqueRun":
+        """Read a torque run written by :meth:`write` (positions, sidecar and table)."""
+        m = dataio.read_measurement(path)
+        table_path = Path(path).with_name(Path(path).name.replace("_positions.csv", "_torque.csv"))
+        table = dataio.read_table(table_path, columns=3)
+        period = float(m.meta.get("period_s", table[1, 0] - table[0, 0]))
+        rows = np.minimum((m.t / period).astype(int), len(table) - 1)
+        extra = {k: np.asarray(m.meta[k]) for k in ("t_cmd", "t_read") if k in m.meta}
+        return cls(t=m.t, q1=np.radians(m.angle1), q2=np.radians(m.angle2), tau=table[rows, 1:],
+                   iq=np.full((m.t.size, 2), np.nan), rate_hz=float(m.meta.get("rate_hz", np.nan)),
+                   meta=m.meta, table=table[:, 1:], period=period, **extra)
 
 
 def play_torque_table(odrv, tau, period: float = 0.002, duration: float | None = None,
@@ -650,7 +709,7 @@ def play_torque_table(odrv, tau, period: float = 0.002, duration: float | None =
     if np.max(np.abs(motor_tau)) > limit:
         warnings.warn(f"torque table asks up to {np.max(np.abs(motor_tau)):.3f} N*m at the motor; the "
                       f"current limit allows {limit:.3f} N*m: it will saturate", stacklevel=2)
-    ts, c1, c2, iq, rows = [], [], [], [], []
+    ts, t_cmd, t_read, c1, c2, iq, rows = [], [], [], [], [], [], []
     with safe(dev):
         _prepare_closed_loop(dev, dev.config.vel_limit, watchdog=0.2)
         for a in (0, 1):
@@ -665,9 +724,16 @@ def play_torque_table(odrv, tau, period: float = 0.002, duration: float | None =
                 break
             i = min(int(now / period), len(tau) - 1)
             dev.set(a_q1, "input_torque", float(motor_tau[i, 0]))
+            w1 = dev.time() - t0
             dev.set(a_q2, "input_torque", float(motor_tau[i, 1]))
-            n1, n2 = dev.counts(a_q1), dev.counts(a_q2)
-            ts.append(dev.time() - t0)
+            w2 = dev.time() - t0
+            n1 = dev.counts(a_q1)
+            r1 = dev.time() - t0
+            n2 = dev.counts(a_q2)
+            r2 = dev.time() - t0
+            t_cmd.append((w1, w2))
+            t_read.append((r1, r2))
+            ts.append(r2)
             c1.append(n1)
             c2.append(n2)
             rows.append(i)
@@ -688,4 +754,29 @@ def play_torque_table(odrv, tau, period: float = 0.002, duration: float | None =
     t = np.asarray(ts)
     rate = (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 else float("nan")
     return TorqueRun(t=t, q1=ax.counts_to_joint(np.asarray(c1), 0), q2=ax.counts_to_joint(np.asarray(c2), 1),
-                     tau=tau[np.asarray(rows)], iq=np.asarray(iq), rate_hz=rate, meta=dev.describe())
+                     tau=tau[np.asarray(rows)], iq=np.asarray(iq), rate_hz=rate,
+                     meta={**dev.describe(), "current_control_bandwidth": dev.config.current_control_bandwidth},
+                     table=tau, period=period, t_cmd=np.asarray(t_cmd), t_read=np.asarray(t_read))
+
+
+def sine_torque_table(bias: float = 0.045, amplitude: float = 0.025, freqs=(0.45, 0.7),
+                      duration: float = 8.0, ramp: float = 0.5, period: float = 0.002) -> np.ndarray:
+    """Joint torques (N, 2) [N*m] of the friction experiment: an opening bias that holds the
+    leg off its stops plus a sine on each joint at its own frequency [Hz] (so the two
+    joints' friction can be told apart), both faded in over ``ramp`` s."""
+    t = period * np.arange(int(round(duration / period)))
+    fade = np.clip(t / ramp, 0.0, 1.0) if ramp > 0 else np.ones_like(t)
+    open1 = -(bias + amplitude * np.sin(2 * np.pi * freqs[0] * t))   # q1 down opens the leg
+    open2 = bias + amplitude * np.sin(2 * np.pi * freqs[1] * t)      # q2 up opens the leg
+    return np.column_stack([fade * open1, fade * open2])
+
+
+def friction_experiment(odrv, bias: float = 0.045, amplitude: float = 0.025, freqs=(0.45, 0.7),
+                        duration: float = 8.0, ramp: float = 0.5, period: float = 0.002) -> TorqueRun:
+    """Thesis 5.2's experiment: sine torques on both joints (see :func:`sine_torque_table`),
+    played back with :func:`play_torque_table`. The defaults move the thesis's leg over
+    q2 - q1 of about 15-60 deg without touching its stops."""
+    table = sine_torque_table(bias, amplitude, freqs, duration, ramp, period)
+    run = play_torque_table(odrv, table, period=period)
+    run.meta.update({"bias_Nm": bias, "amplitude_Nm": amplitude, "freqs_hz": list(freqs), "ramp_s": ramp})
+    return run

@@ -213,6 +213,19 @@ class LegParams:
         object.__setattr__(new, "_sources", getattr(self, "_sources", {}))
         return new
 
+    def scaled(self, inertia: float = 1.0, mass: float = 1.0, payload: float = 0.0) -> "LegParams":
+        """The same leg with inertias (links and drives) times ``inertia``, masses times
+        ``mass``, and a point mass ``payload`` [kg] on the foot, folded into link 4 (exact
+        for a mass on the foot joint, which is link 4's end)."""
+        m4, lc4, I4 = self.m4 * mass, self.lc4, self.I4 * inertia
+        if payload > 0:
+            lc4_new = (m4 * lc4 + payload * self.l4) / (m4 + payload)
+            I4 = I4 + m4 * (lc4_new - lc4) ** 2 + payload * (self.l4 - lc4_new) ** 2
+            m4, lc4 = m4 + payload, lc4_new
+        return self.replace(m1=self.m1 * mass, m2=self.m2 * mass, m3=self.m3 * mass, m4=m4, lc4=lc4,
+                            I1=self.I1 * inertia, I2=self.I2 * inertia, I3=self.I3 * inertia, I4=I4,
+                            Jd1=self.Jd1 * inertia, Jd2=self.Jd2 * inertia)
+
     @property
     def q0(self) -> tuple[float, float]:
         """Operating point (q1, q2) [rad]."""
@@ -295,6 +308,7 @@ class PlantParams:
     stribeck_velocity: float = _p("friction", "rad/s")
     coulomb_smoothing: float = _p("friction", "rad/s")
     gap_min: float = _p("stop", "rad", "nonnegative")
+    gap_max: float = _p("stop", "rad")
     stop_stiffness: float = _p("stop", "N*m/rad", "nonnegative")
     stop_damping: float = _p("stop", "N*m*s/rad", "nonnegative")
     encoder_noise: float = _p("sensing", "count", "nonnegative")

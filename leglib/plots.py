@@ -78,3 +78,44 @@ def plot_states(t, states: dict, ax=None, deg: bool = True, idx=(0, 2), names=("
     ax.set_ylabel("angle [deg]" if deg else "angle [rad]")
     ax.legend()
     return lines
+
+
+def plot_torque_run(run, ax=None):
+    """Joint angles of a torque run (left axis) and the commanded torques (right axis)."""
+    ax = _ax(ax)
+    l1 = ax.plot(run.t, np.degrees(run.q1), label="q1")
+    l2 = ax.plot(run.t, np.degrees(run.q2), label="q2")
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("joint angle [deg]")
+    ax2 = ax.twinx()
+    tt = run.period * np.arange(len(run.table))
+    l3 = ax2.plot(tt, run.table[:, 0], "k:", lw=0.8, label="tau1")
+    l4 = ax2.plot(tt, run.table[:, 1], "k--", lw=0.8, label="tau2")
+    ax2.set_ylabel("joint torque [N m]")
+    lines = l1 + l2 + l3 + l4
+    ax.legend(lines, [ln.get_label() for ln in lines], loc="upper right", fontsize=8)
+    return lines
+
+
+def plot_measured_vs_simulated(t, measured, simulated: dict, ax=None, label="q2"):
+    """A measured angle [rad] against simulated ones (dict label -> array) in degrees."""
+    ax = _ax(ax)
+    lines = ax.plot(t, np.degrees(measured), "r-", lw=2, label=f"{label} experiment")
+    for style, (name, sim) in zip(["b--", "g-.", "m:"], simulated.items()):
+        lines += ax.plot(t, np.degrees(sim), style, label=f"{label} {name}")
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("angle [deg]")
+    ax.legend(fontsize=8)
+    return lines
+
+
+def plot_step_identification(t, y, fit, ax=None):
+    """A step response with its second-order fit."""
+    ax = _ax(ax)
+    lines = ax.plot(t, y * 1e3, "r-", label="measured")
+    lines += ax.plot(t, fit.response(t) * 1e3, "b--",
+                     label=f"{fit.method}: zeta={fit.zeta:.3f}, fn={fit.fn:.2f} Hz, fd={fit.fd:.2f} Hz")
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("foot y [mm]")
+    ax.legend(fontsize=8)
+    return lines

@@ -87,7 +87,7 @@ def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
 
     X[b] = (q1, dq1, q2, dq2, t); AS, AI, C per axis (see the S_, I_, C_ indices);
     P[b] the true leg's parameter vector; FR[b] = (visc1, visc2, coul1, coul2, strib1,
-    strib2, v_stribeck, v_smooth, gap_min, k_stop, c_stop, J1, J2); MECH[b] 0 five-bar,
+    strib2, v_stribeck, v_smooth, gap_min, k_stop, c_stop, J1, J2, gap_max); MECH[b] 0 five-bar,
     1 independent inertias; DRV = (gear_ratio, cpr, direction, q_rest1, q_rest2,
     joint_of_axis0, encoder_noise, current_noise, true torque constant); TT[b, i, axis] a torque table applied
     to axes in torque mode, row i = tick // tt_period (ignored when it has no rows);
@@ -233,6 +233,11 @@ def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
                     if push > 0.0:
                         t1 -= push
                         t2 += push
+                elif gap > FR[b, 13]:
+                    pull = FR[b, 9] * (gap - FR[b, 13]) + FR[b, 10] * (dq2 - dq1)
+                    if pull > 0.0:
+                        t1 += pull
+                        t2 -= pull
             det = d11 * d22 - d12 * d12
             a1 = (d22 * t1 - d12 * t2) / det
             a2 = (-d12 * t1 + d11 * t2) / det
@@ -256,22 +261,10 @@ def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
 # ---------------------------------------------------------------------------------------
 
 def true_leg(plant: PlantParams) -> LegParams:
-    """The twin's hidden leg: the base set with scaled masses/inertias and the payload
-    folded into link 4 as a point mass at the foot (exact for a mass on the foot joint)."""
-    leg = plant.base_leg()
-    s, m = plant.inertia_scale, plant.mass_scale
-    m4 = leg.m4 * m
-    lc4 = leg.lc4
-    I4 = leg.I4 * s
-    mp = plant.payload_mass
-    if mp > 0:
-        lc4_new = (m4 * lc4 + mp * leg.l4) / (m4 + mp)
-        I4 = I4 + m4 * (lc4_new - lc4) ** 2 + mp * (leg.l4 - lc4_new) ** 2
-        m4, lc4 = m4 + mp, lc4_new
-    return leg.replace(m1=leg.m1 * m, m2=leg.m2 * m, m3=leg.m3 * m, m4=m4, lc4=lc4,
-                       I1=leg.I1 * s, I2=leg.I2 * s, I3=leg.I3 * s, I4=I4,
-                       Jd1=leg.Jd1 * s, Jd2=leg.Jd2 * s,
-                       c11=plant.viscous1, c12=0.0, c21=0.0, c22=plant.viscous2,
+    """The twin's hidden leg: the base set scaled (inertia, mass), the payload on the foot,
+    and the plant's own viscous and Coulomb friction (Stribeck is added in the kernel)."""
+    leg = plant.base_leg().scaled(plant.inertia_scale, plant.mass_scale, plant.payload_mass)
+    return leg.replace(c11=plant.viscous1, c12=0.0, c21=0.0, c22=plant.viscous2,
                        coulomb1=plant.coulomb1, coulomb2=plant.coulomb2)
 
 
@@ -336,7 +329,7 @@ class Twin:
         p = self.plant
         self.FR = np.array([p.viscous1, p.viscous2, p.coulomb1, p.coulomb2, p.stribeck1, p.stribeck2,
                             p.stribeck_velocity, p.coulomb_smoothing, p.gap_min, p.stop_stiffness,
-                            p.stop_damping, J1, J2])
+                            p.stop_damping, J1, J2, p.gap_max])
         self.mech = 0 if p.mechanism == "fivebar" else 1
         ax = self.axes
         motor = self.motor

@@ -73,3 +73,94 @@ def test_unusable_responses_raise(t, y, message):
 def test_unknown_method():
     with pytest.raises(ValueError, match="method"):
         second_order(T, _model(T, 0.3, 30, 1, 0, 0), method="magic")
+
+
+# ---------------------------------------------------------------------------------------
+# friction
+# ---------------------------------------------------------------------------------------
+
+from leglib.identify import _simulate_joint, fit_friction, fit_leg_friction  # noqa: E402
+
+TF = np.arange(3000) * 0.002
+TAU = 0.06 * np.sin(2 * np.pi * 0.7 * TF) + 0.03 * np.sin(2 * np.pi * 1.9 * TF)
+
+
+def _joint(c_pos=0.02, c_neg=0.02, J=0.004, b=0.01, eps=0.01):
+    return _simulate_joint(TF, TAU, J, b, c_pos, c_neg, 0.0, eps)
+
+
+def test_fit_friction_recovers_truth_from_velocity():
+    rng = np.random.default_rng(0)
+    f = fit_friction(TF, TAU, velocity=_joint() + rng.normal(0, 0.01, TF.size), eps=0.01)
+    assert f.coulomb == pytest.approx(0.02, rel=0.03)
+    assert f.viscous == pytest.approx(0.01, rel=0.03)
+    assert f.inertia == pytest.approx(0.004, rel=0.03)
+    assert f.r2 > 0.999
+    for k in ("coulomb", "viscous", "inertia"):
+        assert 0 < f.stderr[k] < 0.05 * abs(getattr(f, k))
+    v = f.simulate(TF, TAU, v0=0.0)
+    assert np.sqrt(np.mean((v - _joint()) ** 2)) < 0.02 * np.max(np.abs(v))
+
+
+def test_fit_friction_from_quantized_position_and_known_inertia():
+    rng = np.random.default_rng(1)
+    q = np.cumsum(_joint()) * 0.002
+    res = 2 * np.pi / 12000  # 4000 CPR through the 1:3 belt
+    q = np.round(q / res) * res + rng.normal(0, 0.35 * res, q.size)
+    f = fit_friction(TF, TAU, position=q, eps=0.01)
+    assert f.coulomb == pytest.approx(0.02, rel=0.05) and f.viscous == pytest.approx(0.01, rel=0.05)
+    g = fit_friction(TF, TAU, position=q, inertia=0.004, eps=0.01)
+    assert g.inertia == 0.004 and g.coulomb == pytest.approx(0.02, rel=0.05)
+
+
+def test_fit_friction_asymmetric_directions():
+    f = fit_friction(TF, TAU, velocity=_joint(c_pos=0.015, c_neg=0.035), eps=0.01)
+    assert f.coulomb_pos == pytest.approx(0.015, rel=0.05)
+    assert f.coulomb_neg == pytest.approx(0.035, rel=0.05)
+    assert f.coulomb == pytest.approx(0.025, rel=0.05)
+
+
+def test_fit_friction_rejects_bad_input():
+    with pytest.raises(IdentificationError, match="exactly one"):
+        fit_friction(TF, TAU)
+    with pytest.raises(IdentificationError, match="did not move"):
+        fit_friction(TF, TAU, velocity=np.zeros(TF.size))
+    with pytest.raises(IdentificationError, match="equal length"):
+        fit_friction(TF, TAU[:-1], velocity=TF)
+
+
+@pytest.fixture(scope="module")
+def twin_run():
+    from leglib import odrive_io as io
+    dev = io.connect("virtual", seed=4)
+    io.apply_configuration(dev)
+    io.calibrate(dev)
+    return dev, io.friction_experiment(dev)
+
+
+def test_leg_friction_recovers_the_twins_truth_within_5_percent(twin_run):
+    from leglib.params import load_leg
+    dev, run = twin_run
+    truth = dev.raw.twin.plant
+    f = fit_leg_friction(run, load_leg("thesis"), starts=2)
+    for name, true in (("viscous1", truth.viscous1), ("viscous2", truth.viscous2),
+                       ("coulomb1", truth.coulomb1), ("coulomb2", truth.coulomb2),
+                       ("inertia_scale", truth.inertia_scale), ("mass_scale", truth.mass_scale)):
+        assert f.params[name] == pytest.approx(true, rel=0.05), name
+    assert max(f.rms_deg) < 0.1 and min(f.r2) > 0.999
+    # far better than the nominal chapter-5 model (viscous 0.098, no Coulomb)
+    from leglib.identify import _simulate_run
+    from leglib.model import friction_vector
+    leg = load_leg("thesis")
+    use, q_nom = _simulate_run(run, leg, friction_vector(leg), f.start, (f.params["dq1_0"], f.params["dq2_0"]))
+    rms_nom = np.degrees(np.sqrt(np.mean((q_nom[:, 0] - run.q1[use]) ** 2)))
+    assert rms_nom > 20 * f.rms_deg[0]
+
+
+def test_torque_run_file_round_trip(twin_run, tmp_path):
+    from leglib import odrive_io as io
+    _, run = twin_run
+    back = io.TorqueRun.read(run.write(tmp_path))
+    np.testing.assert_allclose(back.q1, run.q1, atol=1e-7)
+    np.testing.assert_allclose(back.table, run.table, atol=1e-6)
+    np.testing.assert_allclose(back.t_cmd, run.t_cmd, atol=1e-6)

@@ -63,3 +63,18 @@ def test_bad_parameter_stops_notebook_early(tmp_path):
     with pytest.raises(pm.PapermillExecutionError) as err:
         execute(NOTEBOOKS[0], tmp_path, {"smoke": True, "grid_n": "many"}, html=False)
     assert "parameter 'grid_n' must be int" in str(err.value)
+
+
+@pytest.mark.notebook
+def test_02_friction_fitting(tmp_path):
+    m = _run(NOTEBOOKS[1], tmp_path, raw_dir=str(tmp_path / "raw"), processed_dir=str(tmp_path / "processed"))
+    assert m["backend"] == "virtual"
+    for name, rel in m["recovery_rel_error"].items():
+        assert abs(rel) < 0.05, (name, rel)
+    assert max(m["rms_deg"]) < 0.1 < min(m["rms_before_deg"])
+    assert m["preferred_model"] == "coulomb_viscous"  # the twin has no Stribeck friction
+    sj = m["single_joint"]
+    assert sj["inertia"] == pytest.approx(sj["inertia_true"], rel=0.05) and sj["r2"] > 0.99
+    assert 0 < m["step_fit"]["zeta"] < 1 and m["step_fit"]["fd"] < m["step_fit"]["fn"]
+    assert (tmp_path / "processed" / "friction_identified.json").exists()
+    assert len(list((tmp_path / "raw").glob("*_torque.csv"))) == 1
