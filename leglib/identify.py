@@ -648,3 +648,26 @@ def choose_friction_model(plain: LegFrictionFit, stribeck: LegFrictionFit, min_e
         return plain, (f"AIC favours Stribeck by {delta:.1f}, but its terms are only {effect:.1%} of "
                        f"Coulomb friction: negligible, keep the simpler model")
     return plain, f"AIC does not favour the Stribeck terms (difference {delta:+.1f})"
+
+
+def load_identified(path, leg):
+    """The identified leg written by notebook 02 (``data/processed/friction_identified.json``):
+    returns (LegParams with identified masses, inertias and friction; the kernels' friction
+    vector with the identified Coulomb width)."""
+    import json
+    from pathlib import Path
+
+    from .model import friction_vector
+
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"{p}: no identified leg; run notebook 02_friction_fitting first "
+                                f"(or design on the nominal leg)")
+    try:
+        doc = json.loads(p.read_text())
+        values = {k: float(v) for k, v in doc["leg"].items()}
+        v_smooth = float(doc["friction"]["v_smooth"])
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{p}: not an identified-leg file ({exc})") from None
+    ident = leg.replace(**values)
+    return ident, friction_vector(ident, v_smooth=v_smooth)

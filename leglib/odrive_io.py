@@ -386,20 +386,37 @@ class StepResponse:
                    completed=m.stable, abort_reason=m.meta.get("abort_reason"), meta=m.meta)
 
 
+def clear_errors(odrv) -> None:
+    """Clear the error flags of both axes (after inspecting them)."""
+    dev = as_device(odrv)
+    for a in (0, 1):
+        for key in ("error", "controller_error", "motor_error"):
+            dev.set(a, key, 0)
+
+
 def _prepare_closed_loop(dev: Device, vel_limit: float, watchdog: float | None) -> None:
-    """Limits first, then the watchdog; both axes."""
+    """Refuse to start on a stale fault; then limits, then the watchdog (on with a timeout
+    [s], off with None); both axes."""
+    for a in (0, 1):
+        err = int(dev.get(a, "error"))
+        if err:
+            raise ExperimentError(f"axis{a} has error 0x{err:x} from an earlier fault; inspect it, then "
+                                  f"call leglib.odrive_io.clear_errors(odrv)")
     for a in (0, 1):
         dev.set(a, "current_lim", dev.config.current_lim)
         dev.set(a, "vel_limit", vel_limit)
         if watchdog:
             dev.set(a, "watchdog_timeout", watchdog)
             dev.set(a, "enable_watchdog", True)
+        else:
+            dev.set(a, "enable_watchdog", False)
 
 
 def _abort_reason_of(code: int) -> str | None:
     from . import twin as T
     return {T.ABORT_NONE: None, T.ABORT_POSITION_ERROR: "position error past bound",
-            T.ABORT_NONFINITE: "simulation left the valid configuration"}[int(code)]
+            T.ABORT_NONFINITE: "simulation left the valid configuration",
+            T.ABORT_OSCILLATION: "oscillation not decaying (growing or sustained)"}[int(code)]
 
 
 def _responses_from_batch(dev: Device, gains, out: dict, step: float) -> list[StepResponse]:
@@ -426,6 +443,7 @@ def _responses_from_batch(dev: Device, gains, out: dict, step: float) -> list[St
 
 def _step_usb(dev: Device, gains, step, duration, sample_period, vel_limit, abort_error) -> StepResponse:
     """Listing 7.4 on a real device: a paced polling loop with safety checks."""
+    from . import twin as T
     ax = dev.axes
     a_q1, a_q2 = ax.axis_of_joint
     with safe(dev):
@@ -445,8 +463,7 @@ def _step_usb(dev: Device, gains, step, duration, sample_period, vel_limit, abor
         t0 = dev.time()
         ts, c1, c2 = [], [], []
         reason = None
-        err_peaks: list[float] = []
-        last_err, rising = 0.0, False
+        monitors = {a: np.zeros(T.N_OSC) for a in (0, 1)}
         next_sample = 0.0
         while True:
             now = dev.time() - t0
@@ -462,20 +479,14 @@ def _step_usb(dev: Device, gains, step, duration, sample_period, vel_limit, abor
             c2.append(n2)
             for a in (0, 1):
                 dev.axis(a).watchdog_feed()
-            # safety: position error bound and growing oscillation
-            err = max(abs(target[a_q1] - n1 / ax.cpr), abs(target[a_q2] - n2 / ax.cpr))
-            if err > abort_error:
+            # safety, as the twin's kernel: position error bound and non-decaying oscillation
+            errs = {a_q1: target[a_q1] - n1 / ax.cpr, a_q2: target[a_q2] - n2 / ax.cpr}
+            if max(abs(e) for e in errs.values()) > abort_error:
                 reason = "position error past bound"
                 break
-            if err > last_err:
-                rising = True
-            elif rising:
-                err_peaks.append(last_err)
-                rising = False
-                if len(err_peaks) >= 4 and err_peaks[-1] > err_peaks[-2] > err_peaks[-3] > 0.05 * abs(step):
-                    reason = "oscillation amplitude growing"
-                    break
-            last_err = err
+            if any(T.oscillation_update(monitors[a], errs[a], 0.025 * abort_error) for a in (0, 1)):
+                reason = "oscillation not decaying (growing or sustained)"
+                break
             if any(int(dev.get(a, "current_state")) != AXIS_STATE_CLOSED_LOOP_CONTROL for a in (0, 1)):
                 errs = [int(dev.get(a, "error")) for a in (0, 1)]
                 reason = f"axis dropped out of closed loop (errors 0x{errs[0]:x}, 0x{errs[1]:x})"
@@ -497,8 +508,8 @@ def step_response(odrv, pos_gain: float, vel_gain: float, vel_integrator_gain: f
 
     The axis driving q1 moves by +``step`` motor turns, the other by -``step``. Gains are
     refused outside the configured bounds. The experiment aborts, sets IDLE and marks the
-    response not completed when the position error passes 2*|step| (or, on USB, the
-    oscillation grows). Afterwards the axes are IDLE and the leg is left ``settle`` s to
+    response not completed when the position error passes 2*|step| or the oscillation
+    stops decaying (three half-cycles in a row no smaller than the one before). Afterwards the axes are IDLE and the leg is left ``settle`` s to
     come to rest.
 
     On the twin the step runs whole in the compiled kernel (a batch of one, the same path
@@ -686,30 +697,23 @@ class TorqueRun:
                    meta=m.meta, table=table[:, 1:], period=period, **extra)
 
 
-def play_torque_table(odrv, tau, period: float = 0.002, duration: float | None = None,
-                      max_joint_speed: float = 20.0) -> TorqueRun:
-    """Play joint torques ``tau`` (N, 2) [N*m], one row per ``period`` s, on both joints in
-    torque control (Listing 7.3), recording the actual timestamps, joint angles and Iq.
+def torque_loop(odrv, policy, duration: float, period: float | None = None,
+                max_joint_speed: float = 20.0, meta: dict | None = None,
+                record_current: bool = True, check_every: int = 1) -> TorqueRun:
+    """Both joints in torque control; each cycle reads the joint angles, asks
+    ``policy(t, q1, q2) -> (tau1, tau2)`` [N*m at the joints] and writes the torques.
 
-    The loop is paced by the device clock (virtual or wall); rows are chosen by elapsed
-    time, as in the thesis. Aborts to IDLE when a joint moves faster than
-    ``max_joint_speed`` rad/s or an axis drops out of closed loop.
+    With ``period`` the cycles are paced to t = k * period (a controller's sample time);
+    without, the loop runs as fast as the link allows (the thesis's playback). Records the
+    actual read and write time of every value. Aborts to IDLE when a joint moves faster
+    than ``max_joint_speed`` rad/s or an axis drops out of closed loop (checked every
+    ``check_every`` cycles; each check and each Iq read costs a USB transaction).
     """
     dev = as_device(odrv)
-    tau = np.asarray(tau, dtype=float)
-    if tau.ndim != 2 or tau.shape[1] != 2 or len(tau) < 1 or not np.all(np.isfinite(tau)):
-        raise ValueError(f"tau must be a finite (N, 2) table of joint torques, got shape {tau.shape}")
-    if period <= 0:
-        raise ValueError(f"period must be positive, got {period}")
-    duration = len(tau) * period if duration is None else duration
     ax = dev.axes
     a_q1, a_q2 = ax.axis_of_joint
-    motor_tau = ax.motor_torque(tau)  # (N, 2) in joint order
     limit = dev.config.current_lim * dev.config.torque_constant
-    if np.max(np.abs(motor_tau)) > limit:
-        warnings.warn(f"torque table asks up to {np.max(np.abs(motor_tau)):.3f} N*m at the motor; the "
-                      f"current limit allows {limit:.3f} N*m: it will saturate", stacklevel=2)
-    ts, t_cmd, t_read, c1, c2, iq, rows = [], [], [], [], [], [], []
+    ts, t_cmd, t_read, c1, c2, iq, applied = [], [], [], [], [], [], []
     with safe(dev):
         _prepare_closed_loop(dev, dev.config.vel_limit, watchdog=0.2)
         for a in (0, 1):
@@ -717,27 +721,39 @@ def play_torque_table(odrv, tau, period: float = 0.002, duration: float | None =
             dev.set(a, "control_mode", CONTROL_MODE_TORQUE)
             dev.set(a, "requested_state", AXIS_STATE_CLOSED_LOOP_CONTROL)
         t0 = dev.time()
+        k = 0
         prev = None
         while True:
             now = dev.time() - t0
+            if period is not None and now < k * period:
+                dev.sleep(k * period - now)
+                now = dev.time() - t0
             if now > duration:
                 break
-            i = min(int(now / period), len(tau) - 1)
-            dev.set(a_q1, "input_torque", float(motor_tau[i, 0]))
-            w1 = dev.time() - t0
-            dev.set(a_q2, "input_torque", float(motor_tau[i, 1]))
-            w2 = dev.time() - t0
+            k += 1
             n1 = dev.counts(a_q1)
             r1 = dev.time() - t0
             n2 = dev.counts(a_q2)
             r2 = dev.time() - t0
+            q1, q2 = float(ax.counts_to_joint(n1, 0)), float(ax.counts_to_joint(n2, 1))
+            tau = np.asarray(policy(r2, q1, q2), dtype=float)
+            if tau.shape != (2,) or not np.all(np.isfinite(tau)):
+                raise ExperimentError(f"policy returned {tau!r} at t = {r2:.3f} s; expected two finite torques")
+            motor = ax.motor_torque(tau)
+            dev.set(a_q1, "input_torque", float(np.clip(motor[0], -limit, limit)))
+            w1 = dev.time() - t0
+            dev.set(a_q2, "input_torque", float(np.clip(motor[1], -limit, limit)))
+            w2 = dev.time() - t0
             t_cmd.append((w1, w2))
             t_read.append((r1, r2))
             ts.append(r2)
             c1.append(n1)
             c2.append(n2)
-            rows.append(i)
-            iq.append((float(dev.get(a_q1, "Iq_measured")), float(dev.get(a_q2, "Iq_measured"))))
+            applied.append(ax.joint_torque(np.clip(motor, -limit, limit)))
+            if record_current:
+                iq.append((float(dev.get(a_q1, "Iq_measured")), float(dev.get(a_q2, "Iq_measured"))))
+            else:
+                iq.append((math.nan, math.nan))
             for a in (0, 1):
                 dev.axis(a).watchdog_feed()
             if prev is not None and ts[-1] > prev[0]:
@@ -746,7 +762,7 @@ def play_torque_table(odrv, tau, period: float = 0.002, duration: float | None =
                     raise ExperimentError(f"joint speed {speed:.1f} rad/s exceeds {max_joint_speed} rad/s "
                                           f"at t = {ts[-1]:.3f} s: aborted, axes IDLE")
             prev = (ts[-1], n1, n2)
-            if int(dev.get(a_q1, "current_state")) != AXIS_STATE_CLOSED_LOOP_CONTROL:
+            if k % check_every == 0 and int(dev.get(a_q1, "current_state")) != AXIS_STATE_CLOSED_LOOP_CONTROL:
                 raise ExperimentError(f"axis{a_q1} dropped out of closed loop at t = {ts[-1]:.3f} s "
                                       f"(error 0x{int(dev.get(a_q1, 'error')):x})")
         for a in (0, 1):
@@ -754,9 +770,61 @@ def play_torque_table(odrv, tau, period: float = 0.002, duration: float | None =
     t = np.asarray(ts)
     rate = (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 else float("nan")
     return TorqueRun(t=t, q1=ax.counts_to_joint(np.asarray(c1), 0), q2=ax.counts_to_joint(np.asarray(c2), 1),
-                     tau=tau[np.asarray(rows)], iq=np.asarray(iq), rate_hz=rate,
-                     meta={**dev.describe(), "current_control_bandwidth": dev.config.current_control_bandwidth},
-                     table=tau, period=period, t_cmd=np.asarray(t_cmd), t_read=np.asarray(t_read))
+                     tau=np.asarray(applied), iq=np.asarray(iq), rate_hz=rate,
+                     meta={**dev.describe(), "current_control_bandwidth": dev.config.current_control_bandwidth,
+                           **(meta or {})},
+                     period=period if period is not None else float(np.median(np.diff(t))) if len(t) > 1 else 0.0,
+                     t_cmd=np.asarray(t_cmd), t_read=np.asarray(t_read))
+
+
+def play_torque_table(odrv, tau, period: float = 0.002, duration: float | None = None,
+                      max_joint_speed: float = 20.0) -> TorqueRun:
+    """Play joint torques ``tau`` (N, 2) [N*m], one row per ``period`` s, on both joints in
+    torque control (Listing 7.3), recording the actual timestamps, joint angles and Iq.
+
+    The loop runs as fast as the link allows; rows are chosen by elapsed time, as in the
+    thesis (see :func:`torque_loop` for the safety checks).
+    """
+    dev = as_device(odrv)
+    tau = np.asarray(tau, dtype=float)
+    if tau.ndim != 2 or tau.shape[1] != 2 or len(tau) < 1 or not np.all(np.isfinite(tau)):
+        raise ValueError(f"tau must be a finite (N, 2) table of joint torques, got shape {tau.shape}")
+    if period <= 0:
+        raise ValueError(f"period must be positive, got {period}")
+    duration = len(tau) * period if duration is None else duration
+    limit = dev.config.current_lim * dev.config.torque_constant
+    peak = float(np.max(np.abs(dev.axes.motor_torque(tau))))
+    if peak > limit:
+        warnings.warn(f"torque table asks up to {peak:.3f} N*m at the motor; the current limit "
+                      f"allows {limit:.3f} N*m: it will saturate", stacklevel=2)
+    run = torque_loop(dev, lambda t, q1, q2: tau[min(int(t / period), len(tau) - 1)], duration,
+                      max_joint_speed=max_joint_speed, meta={"experiment": "torque_playback"})
+    run.table = tau
+    run.period = period
+    return run
+
+
+def return_to_rest(odrv, pos_gain: float = 20.0, vel_gain: float = 0.05, vel_integrator_gain: float = 0.3,
+                   move_time: float = 2.0, settle: float = 0.5) -> tuple[float, float]:
+    """Bring the leg back to its rest pose (motor position zero, where it was powered up)
+    with soft position control, then IDLE and let it settle. Returns the joint angles [rad]
+    it ends at. Experiments that start "from rest" call it between runs on a real bench."""
+    dev = as_device(odrv)
+    _check_gains(dev.config, pos_gain, vel_gain, vel_integrator_gain)
+    with safe(dev):
+        _prepare_closed_loop(dev, min(dev.config.vel_limit, 2.0), watchdog=None)
+        for a in (0, 1):
+            dev.set(a, "pos_gain", pos_gain)
+            dev.set(a, "vel_gain", vel_gain)
+            dev.set(a, "vel_integrator_gain", vel_integrator_gain)
+            dev.set(a, "control_mode", CONTROL_MODE_POSITION)
+            dev.set(a, "input_mode", INPUT_MODE_PASSTHROUGH)
+            dev.set(a, "requested_state", AXIS_STATE_CLOSED_LOOP_CONTROL)
+            dev.set(a, "input_pos", 0.0)
+        dev.sleep(move_time)
+    dev.sleep(settle)
+    a1, a2 = dev.axes.axis_of_joint
+    return float(dev.axes.counts_to_joint(dev.counts(a1), 0)), float(dev.axes.counts_to_joint(dev.counts(a2), 1))
 
 
 def sine_torque_table(bias: float = 0.045, amplitude: float = 0.025, freqs=(0.45, 0.7),

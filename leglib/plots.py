@@ -119,3 +119,34 @@ def plot_step_identification(t, y, fit, ax=None):
     ax.set_ylabel("foot y [mm]")
     ax.legend(fontsize=8)
     return lines
+
+
+def plot_pole_map(d, ax=None):
+    """Closed-loop and observer poles of a :class:`leglib.statefeedback.Design`, with the
+    open-loop poles of its model."""
+    ax = _ax(ax)
+    ol = np.linalg.eigvals(d.sys.A)
+    arts = [ax.plot(ol.real, ol.imag, "kx", ms=9, label="open loop")[0],
+            ax.plot(np.real(d.poles), np.imag(d.poles), "bo", label="controller")[0],
+            ax.plot(np.real(d.observer_poles), np.imag(d.observer_poles), "r^", label="observer")[0]]
+    if d.integral_poles is not None:
+        arts.append(ax.plot(np.real(d.integral_poles), np.imag(d.integral_poles), "gs", label="integrators")[0])
+    ax.axvline(0, color="0.6", lw=0.8)
+    ax.axhline(0, color="0.6", lw=0.8)
+    ax.set_xlabel("Re [1/s]")
+    ax.set_ylabel("Im [1/s]")
+    ax.legend(fontsize=8)
+    return arts
+
+
+def plot_step_comparison(series: dict, target_deg: float, ax=None, joint: str = "q2"):
+    """Joint-angle responses (dict label -> (t, q [rad])) against the setpoint."""
+    ax = _ax(ax)
+    lines = []
+    for style, (label, (t, q)) in zip(["r-", "b--", "g-.", "m:", "c-"], series.items()):
+        lines += ax.plot(t, np.degrees(q), style, label=label)
+    lines.append(ax.axhline(target_deg, color="k", lw=0.8, ls=":", label="setpoint"))
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel(f"{joint} [deg]")
+    ax.legend(fontsize=8)
+    return lines

@@ -40,7 +40,9 @@ MODE_IDLE, MODE_TORQUE, MODE_VELOCITY, MODE_POSITION = 0, 1, 2, 3
 N_CFG = 14
 # float state per axis: AS[b, axis, k]
 S_POS_EST, S_VEL_EST, S_INTEGRATOR, S_IQ, S_WD_TIMER, S_IQ_MEAS = range(6)
-N_AXSTATE = 6
+S_OSC = 6           # N_OSC slots of the oscillation monitor (see oscillation_update)
+N_OSC = 6
+N_AXSTATE = S_OSC + N_OSC
 # int state per axis: AI[b, axis, k]
 I_MODE, I_AXIS_ERR, I_CTRL_ERR, I_MOTOR_ERR, I_COUNTS = range(5)
 N_AXINT = 5
@@ -52,7 +54,12 @@ CONTROLLER_ERROR_OVERSPEED = 0x1
 MOTOR_ERROR_CURRENT_LIMIT_VIOLATION = 0x1000
 CURRENT_LIM_MARGIN = 8.0  # A, firmware default motor.config.current_lim_margin
 # leglib's own abort codes (ABORT[b, 1])
-ABORT_NONE, ABORT_POSITION_ERROR, ABORT_NONFINITE = 0, 1, 2
+ABORT_NONE, ABORT_POSITION_ERROR, ABORT_NONFINITE, ABORT_OSCILLATION = 0, 1, 2, 3
+OSC_HALF_CYCLES = 3  # consecutive non-decaying half-cycles that count as unstable
+OSC_GROWTH = 1.1     # a half-cycle this much larger than the first overshoot: growing
+OSC_DECAY = 0.95     # a half-cycle at least this fraction of the previous one is "not decaying"
+                     # (a stable response decays by exp(-pi zeta / sqrt(1 - zeta^2)) per
+                     # half-cycle: 0.95 flags zeta below about 0.016)
 
 
 # ---------------------------------------------------------------------------------------
@@ -74,6 +81,47 @@ def _normal(rng, b):
     # Irwin-Hall sum of four uniforms, scaled to unit variance: cheap and adequate for noise
     s = _next_u01(rng, b) + _next_u01(rng, b) + _next_u01(rng, b) + _next_u01(rng, b)
     return (s - 2.0) * 1.7320508075688772
+
+
+# ---------------------------------------------------------------------------------------
+# the oscillation monitor (also used by odrive_io's polling loop on a real device)
+# ---------------------------------------------------------------------------------------
+
+@njit(cache=True)
+def oscillation_update(st, err, min_amp):
+    """Feed one position-error sample; True when the oscillation is growing or not decaying.
+
+    ``st`` (N_OSC,) starts at zeros and holds: the largest |err| of the current half-cycle,
+    the previous half-cycle's amplitude, the current sign, the count of consecutive
+    non-decaying half-cycles, the number of half-cycles, and the first overshoot. A
+    half-cycle ends when the error changes sign (the first one is the approach to the
+    target, the second the first overshoot). Unstable when, with amplitudes above
+    ``min_amp``, a later half-cycle exceeds OSC_GROWTH times the first overshoot (a damped
+    response never grows past it), or OSC_HALF_CYCLES half-cycles in a row keep at least
+    OSC_DECAY of the previous amplitude.
+    """
+    sgn = 1.0 if err > 0 else -1.0
+    if st[2] == 0.0:
+        st[2] = sgn
+    flagged = False
+    if sgn != st[2]:
+        amp = st[0]
+        st[4] += 1.0
+        if st[4] == 2.0:
+            st[5] = amp
+        if st[4] >= 3.0 and amp > min_amp and amp > OSC_GROWTH * st[5]:
+            flagged = True
+        if amp > min_amp and st[4] >= 2.0 and st[1] > 0.0 and amp >= OSC_DECAY * st[1]:
+            st[3] += 1.0
+        else:
+            st[3] = 0.0
+        st[1] = amp
+        st[0] = 0.0
+        st[2] = sgn
+    a = abs(err)
+    if a > st[0]:
+        st[0] = a
+    return flagged or st[3] >= OSC_HALF_CYCLES
 
 
 # ---------------------------------------------------------------------------------------
@@ -119,6 +167,7 @@ def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
                     REC[b, r, 3] = AS[b, 0, S_IQ_MEAS]
                     REC[b, r, 4] = AS[b, 1, S_IQ_MEAS]
             abort_now = False
+            abort_code = ABORT_NONE
             for a in range(2):
                 j = j_of_a0 if a == 0 else 1 - j_of_a0
                 q = X[b, 2 * j]
@@ -148,8 +197,13 @@ def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
                     AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_CONTROLLER_FAILED
                     mode = MODE_IDLE
                 if mode == MODE_POSITION and C[b, a, C_ABORT_ERROR] > 0.0:
-                    if abs(C[b, a, C_INPUT_POS] - pe) > C[b, a, C_ABORT_ERROR]:
+                    err = C[b, a, C_INPUT_POS] - pe
+                    if abs(err) > C[b, a, C_ABORT_ERROR]:
                         abort_now = True
+                        abort_code = ABORT_POSITION_ERROR
+                    elif oscillation_update(AS[b, a, S_OSC:S_OSC + N_OSC], err, 0.025 * C[b, a, C_ABORT_ERROR]):
+                        abort_now = True
+                        abort_code = ABORT_OSCILLATION
                 if mode == MODE_IDLE:
                     AI[b, a, I_MODE] = MODE_IDLE
                     AS[b, a, S_IQ] = 0.0
@@ -214,7 +268,7 @@ def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
                 tau[1] = 0.0
                 if ABORT[b, 1] == ABORT_NONE:
                     ABORT[b, 0] = k
-                    ABORT[b, 1] = ABORT_POSITION_ERROR
+                    ABORT[b, 1] = abort_code
             # ---- mechanics
             q1, dq1, q2, dq2 = X[b, 0], X[b, 1], X[b, 2], X[b, 3]
             if MECH[b] == 0:
@@ -431,6 +485,7 @@ class Twin:
             st.C[:, a, C_ABORT_ERROR] = abort
             st.AI[:, a, I_MODE] = MODE_POSITION
             st.AS[:, a, S_INTEGRATOR] = 0.0
+            st.AS[:, a, S_OSC:S_OSC + N_OSC] = 0.0
         every = max(1, int(round(sample_period / self.dt)))
         n_ticks = int(round(duration / self.dt))
         n_rec = (n_ticks + every - 1) // every

@@ -130,6 +130,7 @@ class VirtualODrive:
         self.saved_configuration = None
         self._rng = np.random.default_rng(seed)
         self.st = self.twin.rest_state()
+        self._pending = 0.0
         self._t0_wall = _time.monotonic()
         cfg = self.twin.config
         motor = self.twin.motor
@@ -152,15 +153,23 @@ class VirtualODrive:
         """Virtual time since power-up [s]."""
         return float(self.st.X[0, 4])
 
-    def _advance(self, seconds: float) -> None:
-        if seconds > 0:
-            self.twin.run(self.st, seconds=seconds)
+    def _advance(self, seconds: float, progress: bool = False) -> None:
+        # whole ticks only; the remainder is carried, so many short waits add up exactly.
+        # With ``progress`` a positive wait always moves at least one tick (borrowing it),
+        # so a host loop waiting for a sample time cannot spin on a rounding residue.
+        self._pending += max(seconds, 0.0)
+        n = int(self._pending / self.twin.dt + 1e-9)
+        if progress and n == 0 and seconds > 0:
+            n = 1
+        if n > 0:
+            self._pending -= n * self.twin.dt
+            self.twin.run(self.st, ticks=n)
         self._update_state_machine()
 
     def sleep(self, seconds: float) -> None:
         """Let ``seconds`` of (virtual) time pass; in real-time mode also wait."""
         self._check_link()
-        self._advance(seconds)
+        self._advance(seconds, progress=True)
         if self.realtime:
             self._pace()
 
@@ -168,7 +177,7 @@ class VirtualODrive:
         ahead = self.time - (_time.monotonic() - self._t0_wall)
         if ahead > 0:
             _time.sleep(ahead)
-        elif ahead < 0:
+        elif ahead < -self.twin.dt:
             self._advance(-ahead)
 
     def _check_link(self):

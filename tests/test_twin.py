@@ -192,3 +192,40 @@ def test_firmware_06_tree():
         odrv.axis0.encoder
     with pytest.raises(AttributeError):
         odrv.axis0.motor.config
+
+
+def _monitor(signal, min_amp=0.01):
+    st = np.zeros(T.N_OSC)
+    return any(T.oscillation_update(st, e, min_amp) for e in signal)
+
+
+@pytest.mark.parametrize("zeta", [0.05, 0.2, 0.7])
+def test_oscillation_monitor_passes_damped_responses(zeta):
+    from leglib.identify import _model
+    t = np.arange(12000) / 8000
+    err = 0.4 - _model(t, zeta, 30.0, 0.4, 0.0, 0.0)
+    assert not _monitor(err)
+
+
+@pytest.mark.parametrize("growth", [1.0, 1.3])
+def test_oscillation_monitor_flags_sustained_and_growing(growth):
+    t = np.arange(12000) / 8000
+    env = 0.2 * growth ** t
+    err = 0.4 * np.exp(-20 * t) + env * np.sin(2 * np.pi * 3 * t) * (1 - np.exp(-20 * t))
+    assert _monitor(err)
+
+
+def test_usb_polling_path_on_the_twin_agrees_with_the_kernel_path():
+    from leglib import odrive_io as io
+    dev = io.connect("virtual", seed=8, noise=False)
+    io.apply_configuration(dev)
+    io.calibrate(dev)
+    polled = io._step_usb(dev, (50.0, 0.046, 0.001), 0.4, 1.5, 0.002, 12.0, 0.8)
+    batch = io.step_response(dev, 50.0, 0.046, 0.001)
+    assert polled.completed
+    n = min(len(polled.t), len(batch.t))
+    # same leg, same gains: the responses agree up to the polling loop's timing
+    assert np.max(np.abs(polled.q2[:n] - np.interp(polled.t[:n], batch.t, batch.q2))) < np.radians(2.0)
+    unstable = io._step_usb(dev, (50.0, 0.002, 0.08), 0.4, 1.5, 0.002, 12.0, 0.8)
+    assert not unstable.completed and "oscillation" in unstable.abort_reason
+    assert all(int(dev.get(a, "current_state")) == 1 for a in (0, 1))
