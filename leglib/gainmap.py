@@ -1,0 +1,535 @@
+"""The map from ODrive cascade gains to second-order dynamics, and its inverse (thesis 6.4-6.5).
+
+Pipeline (Listings 7.6-7.8, done properly):
+
+1. every step response of a sweep is identified with :func:`leglib.identify.second_order`
+   on the foot height; aborted (unstable) points and responses that cannot be identified
+   are kept and marked as such, never given invented values;
+2. the results go on the 3-D grid (pos_gain x vel_gain x vel_integrator_gain);
+3. gaps are filled by harmonic in-painting (of log zeta, log wn): missing cells solve the discrete Laplace
+   equation with the measured cells fixed (a sparse scipy solve; the thesis used inpaintn,
+   whose smoothing prior is the same Laplacian);
+4. the filled fields are interpolated cubically on a finer grid (as interp3, but in log
+   gains and of log zeta, log wn: a cascade's zeta and wn scale like powers of its gains,
+   which linear coordinates follow badly near small vel_gain); points that
+   touch an unstable cell, where cubic and linear interpolation disagree (the grid cannot
+   resolve the map there), or that come out non-physical (zeta <= 0, fn <= 0) are dropped;
+5. :meth:`GainMap.gains_for` answers a desired (zeta, fn) with the nearest achievable point
+   in a normalized (zeta, fn) space (a KD-tree; the thesis's dsearchn).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy import sparse
+from scipy.interpolate import RegularGridInterpolator
+from scipy.sparse.linalg import spsolve
+from scipy.spatial import cKDTree
+
+from . import dataio
+from .identify import IdentificationError, second_order
+
+STATUS_OK, STATUS_UNSTABLE, STATUS_FAILED, STATUS_MISSING = "ok", "unstable", "failed", "missing"
+AGREEMENT = 0.10  # relative cubic-vs-linear disagreement beyond which a fine point is not trusted
+
+
+@dataclass
+class PointResult:
+    """One identified grid point."""
+
+    gains: tuple
+    status: str
+    zeta: float = math.nan
+    wn: float = math.nan
+    r2: float = math.nan
+    reason: str = ""
+
+    @property
+    def fn(self) -> float:
+        return self.wn / (2 * math.pi)
+
+
+def identify_response(resp, method: str = "fit") -> PointResult:
+    """Identify one :class:`leglib.odrive_io.StepResponse` (foot height ``y``)."""
+    g = tuple(float(x) for x in resp.gains)
+    if not resp.completed:
+        return PointResult(g, STATUS_UNSTABLE, reason=resp.abort_reason or "aborted")
+    try:
+        f = second_order(resp.t, resp.y, method=method)
+    except IdentificationError as exc:
+        return PointResult(g, STATUS_FAILED, reason=str(exc))
+    return PointResult(g, STATUS_OK, f.zeta, f.wn, f.r2)
+
+
+def _identify_chunk(args):
+    chunk, method = args
+    return [identify_response(r, method) for r in chunk]
+
+
+def identify_many(responses, method: str = "fit", workers: int | None = None) -> list[PointResult]:
+    """Identify many responses; on ``workers`` processes (default: all cores) when there
+    are enough of them to pay for the start-up."""
+    import os
+    from concurrent.futures import ProcessPoolExecutor
+
+    responses = list(responses)
+    workers = workers or os.cpu_count() or 1
+    if workers < 2 or len(responses) < 40:
+        return [identify_response(r, method) for r in responses]
+    size = (len(responses) + workers - 1) // workers
+    chunks = [(responses[i:i + size], method) for i in range(0, len(responses), size)]
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        return [p for part in pool.map(_identify_chunk, chunks) for p in part]
+
+
+def harmonic_fill(values: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """Fill the cells of ``values`` where ``known`` is False by solving the discrete Laplace
+    equation (index space, Neumann edges) with the known cells fixed."""
+    values = np.asarray(values, dtype=float)
+    known = np.asarray(known, dtype=bool)
+    if known.all():
+        return values.copy()
+    if not known.any():
+        raise ValueError("harmonic_fill: no known cell to fill from")
+    shape = values.shape
+    n = values.size
+    idx = np.arange(n).reshape(shape)
+    rows, cols, data = [], [], []
+    for axis in range(values.ndim):
+        if shape[axis] < 2:
+            continue
+        a = np.moveaxis(idx, axis, 0)
+        lo, hi = a[:-1].ravel(), a[1:].ravel()
+        # graph Laplacian: each neighbour pair contributes to both cells
+        rows += [lo, hi, lo, hi]
+        cols += [lo, hi, hi, lo]
+        data += [np.ones(lo.size), np.ones(lo.size), -np.ones(lo.size), -np.ones(lo.size)]
+    Lap = sparse.csr_matrix((np.concatenate(data), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+    k = known.ravel()
+    u = ~k
+    rhs = -Lap[u][:, k] @ values.ravel()[k]
+    filled = values.ravel().copy()
+    filled[u] = spsolve(Lap[u][:, u].tocsc(), rhs)
+    return filled.reshape(shape)
+
+
+@dataclass
+class Achievable:
+    """Fine-grid points the map can deliver: gains (M, 3), zeta (M,), fn (M,) [Hz]."""
+
+    gains: np.ndarray
+    zeta: np.ndarray
+    fn: np.ndarray
+
+
+@dataclass
+class Choice:
+    """Answer of :meth:`GainMap.nearest`: gains, the map's (zeta, fn) there, the normalized
+    distance to the request."""
+
+    gains: tuple
+    zeta: float
+    fn: float
+    distance: float
+
+
+class GainMap:
+    """Gains -> (zeta, wn, fn) on a 3-D grid, with gap filling, interpolation and inverse.
+
+    Attributes
+    ----------
+    axes : (pos_gain values, vel_gain values, vel_integrator_gain values), sorted
+    zeta, wn : arrays of shape (len(pos), len(vel), len(vint)); NaN where not identified
+    status : same shape, one of "ok", "unstable", "failed", "missing"
+    """
+
+    def __init__(self, points: list[PointResult], decimals: int = 6):
+        if not points:
+            raise ValueError("GainMap needs at least one identified point")
+        G = np.round(np.array([p.gains for p in points], dtype=float), decimals)
+        self.axes = tuple(np.unique(G[:, i]) for i in range(3))
+        shape = tuple(len(a) for a in self.axes)
+        self.zeta = np.full(shape, np.nan)
+        self.wn = np.full(shape, np.nan)
+        self.status = np.full(shape, STATUS_MISSING, dtype=object)
+        self.points = points
+        for g, p in zip(G, points):
+            i = tuple(int(np.searchsorted(ax, v)) for ax, v in zip(self.axes, g))
+            self.status[i] = p.status
+            if p.status == STATUS_OK:
+                self.zeta[i], self.wn[i] = p.zeta, p.wn
+        self._fine = None
+
+    # -- construction --------------------------------------------------------------------
+    @classmethod
+    def from_responses(cls, responses, method: str = "fit", workers: int | None = None) -> "GainMap":
+        """From :class:`leglib.odrive_io.StepResponse` objects (identified in parallel)."""
+        return cls(identify_many(responses, method, workers))
+
+    @classmethod
+    def from_measurements(cls, paths_or_dir, leg="thesis", method: str = "fit", progress: bool = False) -> "GainMap":
+        """From measurement files (a directory or a list of ``*_positions.csv``).
+
+        ``leg`` (name or LegParams) gives the kinematics for the foot height.
+        """
+        from tqdm.auto import tqdm
+
+        from .odrive_io import StepResponse
+        from .params import load_leg
+
+        leg = load_leg(leg) if isinstance(leg, (str, Path)) else leg
+        if isinstance(paths_or_dir, (str, Path)) and Path(paths_or_dir).is_dir():
+            paths = dataio.list_measurements(paths_or_dir)
+        else:
+            paths = [Path(p) for p in paths_or_dir]
+        if not paths:
+            raise ValueError(f"no measurement files in {paths_or_dir}")
+        points = []
+        for p in tqdm(paths, desc="identify", unit="file", disable=not progress):
+            m = dataio.read_measurement(p)
+            if m.gains is None:
+                raise dataio.MeasurementError(f"{p}: no gains in the file name or sidecar")
+            points.append(identify_response(StepResponse.from_measurement(m, leg), method))
+        return cls(points)
+
+    # -- summary -------------------------------------------------------------------------
+    @property
+    def fn(self) -> np.ndarray:
+        return self.wn / (2 * math.pi)
+
+    def counts(self) -> dict:
+        vals, n = np.unique(self.status.astype(str), return_counts=True)
+        return dict(zip(vals, map(int, n)))
+
+    # -- filling and interpolation ------------------------------------------------------------
+    def filled(self) -> tuple[np.ndarray, np.ndarray]:
+        """(zeta, wn) with every non-"ok" cell filled harmonically (in log) from the "ok" ones."""
+        known = self.status == STATUS_OK
+        return (np.exp(harmonic_fill(np.log(self.zeta), known)),
+                np.exp(harmonic_fill(np.log(self.wn), known)))
+
+    def fine(self, points_per_axis=(31, 46, 40)) -> dict:
+        """Cubic interpolation of the filled map on a finer regular grid (as interp3).
+
+        Returns dict with the fine axes, ``zeta``, ``fn`` and a ``valid`` mask: False where
+        an unstable cell is among the interpolation neighbours, where cubic and linear
+        interpolation disagree by more than AGREEMENT (the grid cannot resolve the map
+        there), or where the value is non-physical.
+        """
+        key = tuple(points_per_axis)
+        if self._fine is not None and self._fine["key"] == key:
+            return self._fine
+        zeta, wn = self.filled()
+        stable = (self.status != STATUS_UNSTABLE).astype(float)
+        axes = self.axes
+        fine_axes = [np.geomspace(a[0], a[-1], n) if len(a) > 1 else a.copy() for a, n in zip(axes, points_per_axis)]
+        mesh = np.stack(np.meshgrid(*fine_axes, indexing="ij"), axis=-1)
+        active = [i for i, a in enumerate(axes) if len(a) > 1]
+        # log coordinates: zeta and wn of a cascade scale like powers of the gains
+        sub_axes = [np.log(axes[i]) for i in active]
+        sub_mesh = np.log(mesh[..., active])
+
+        def interp(field, method):
+            f = field.reshape([len(a) for a in sub_axes])
+            m = method if all(len(a) >= 4 for a in sub_axes) or method == "linear" else "linear"
+            return RegularGridInterpolator(sub_axes, f, method=m)(sub_mesh)
+
+        z = np.exp(interp(np.log(zeta), "cubic"))
+        w = np.exp(interp(np.log(wn), "cubic"))
+        stab = interp(stable, "linear")
+        # where cubic and linear interpolation disagree, the grid is too coarse to tell
+        zl = np.exp(interp(np.log(zeta), "linear"))
+        wl = np.exp(interp(np.log(wn), "linear"))
+        trusted = (np.abs(z - zl) <= AGREEMENT * np.abs(zl)) & (np.abs(w - wl) <= AGREEMENT * np.abs(wl))
+        valid = (stab > 1 - 1e-9) & trusted & (z > 0) & (w > 0) & np.isfinite(z) & np.isfinite(w)
+        self._fine = {"key": key, "axes": fine_axes, "zeta": z, "fn": w / (2 * math.pi), "valid": valid}
+        return self._fine
+
+    def achievable(self, **kw) -> Achievable:
+        """Every valid fine-grid point: the (zeta, fn) region of the thesis's Fig. 6.12."""
+        f = self.fine(**kw)
+        mesh = np.stack(np.meshgrid(*f["axes"], indexing="ij"), axis=-1)
+        v = f["valid"]
+        return Achievable(gains=mesh[v], zeta=f["zeta"][v], fn=f["fn"][v])
+
+    # -- inverse -------------------------------------------------------------------------
+    def _tree(self):
+        if getattr(self, "_kd", None) is None or self._kd[0] is not self._fine:
+            a = self.achievable()
+            if a.zeta.size == 0:
+                raise ValueError("the map has no achievable point (all unstable or failed?)")
+            scale = np.array([np.ptp(a.zeta) or 1.0, np.ptp(a.fn) or 1.0])
+            self._kd = (self._fine, cKDTree(np.column_stack([a.zeta, a.fn]) / scale), scale, a)
+        return self._kd[1:]
+
+    def nearest(self, zeta: float, fn: float) -> Choice:
+        """The achievable point nearest to (zeta, fn [Hz]) in (zeta, fn) normalized by the
+        region's extent."""
+        if not (np.isfinite(zeta) and np.isfinite(fn) and zeta > 0 and fn > 0):
+            raise ValueError(f"desired zeta and fn must be positive, got zeta={zeta}, fn={fn}")
+        tree, scale, a = self._tree()
+        d, i = tree.query(np.array([zeta, fn]) / scale)
+        return Choice(gains=tuple(float(x) for x in a.gains[i]), zeta=float(a.zeta[i]), fn=float(a.fn[i]),
+                      distance=float(d))
+
+    def gains_for(self, zeta: float, fn: float) -> tuple[float, float, float]:
+        """(pos_gain, vel_gain, vel_integrator_gain) for a desired damping ratio and natural
+        frequency fn [Hz] (nearest achievable point)."""
+        return self.nearest(zeta, fn).gains
+
+    def predict(self, gains) -> tuple[float, float]:
+        """(zeta, fn) the interpolated map gives at ``gains`` (cubic on the filled map)."""
+        zeta, wn = self.filled()
+        active = [i for i, a in enumerate(self.axes) if len(a) > 1]
+        pts = np.log(np.asarray(gains, dtype=float)[active])[None, :]
+        sub = [np.log(self.axes[i]) for i in active]
+        shape = [len(a) for a in sub]
+        method = "cubic" if all(n >= 4 for n in shape) else "linear"
+        z = np.exp(RegularGridInterpolator(sub, np.log(zeta).reshape(shape), method=method)(pts)[0])
+        w = np.exp(RegularGridInterpolator(sub, np.log(wn).reshape(shape), method=method)(pts)[0])
+        return float(z), float(w / (2 * math.pi))
+
+
+def spread_targets(achievable: Achievable, count: int = 10, margin: float = 0.1, seed: int = 0) -> np.ndarray:
+    """``count`` (zeta, fn) targets spread over the achievable region (farthest-point
+    sampling in normalized coordinates, away from the region's edges by ``margin``)."""
+    pts = np.column_stack([achievable.zeta, achievable.fn])
+    lo, hi = np.quantile(pts, margin, axis=0), np.quantile(pts, 1 - margin, axis=0)
+    inside = pts[np.all((pts >= lo) & (pts <= hi), axis=1)]
+    scale = np.ptp(inside, axis=0)
+    scale[scale == 0] = 1.0
+    norm = inside / scale
+    rng = np.random.default_rng(seed)
+    chosen = [int(rng.integers(len(norm)))]
+    dist = np.linalg.norm(norm - norm[chosen[0]], axis=1)
+    while len(chosen) < min(count, len(norm)):
+        nxt = int(np.argmax(dist))
+        chosen.append(nxt)
+        dist = np.minimum(dist, np.linalg.norm(norm - norm[nxt], axis=1))
+    return inside[chosen]
+
+
+# ---------------------------------------------------------------------------------------
+# the model-based inverse: a handful of experiments instead of a full sweep
+# ---------------------------------------------------------------------------------------
+
+@dataclass
+class CascadePlant:
+    """A low-order plant as one axis of the cascade sees it: inertia ``J`` [N*m/(turn/s^2)]
+    and viscous damping ``b`` [N*m/(turn/s)] at the motor, with the ODrive's current and
+    encoder bandwidths; ``leg`` maps motor steps to the foot height."""
+
+    J: float
+    b: float
+    torque_constant: float
+    current_bandwidth: float
+    encoder_bandwidth: float
+    leg: object
+    step: float = 0.4
+    duration: float = 1.5
+    sample_period: float = 0.002
+    rms_turns: float = math.nan
+    experiments: int = 0
+
+    def motor_response(self, gains, t=None) -> tuple[np.ndarray, np.ndarray]:
+        """(t, motor position [turn]) of the axis driving q1 for a step of ``step``."""
+        import control
+
+        from .cascade import axis_closed_loop
+        t = np.arange(int(round(self.duration / self.sample_period))) * self.sample_period if t is None else t
+        sys = axis_closed_loop(self.J, self.torque_constant, *gains, current_bandwidth=self.current_bandwidth,
+                               encoder_bandwidth=self.encoder_bandwidth, viscous=self.b)
+        return t, control.forced_response(sys, t, np.full(t.size, self.step)).outputs
+
+    def predict(self, gains) -> tuple[float, float]:
+        """(zeta, fn [Hz]) of the foot-height step the model predicts for ``gains``."""
+        from .drive import AxisMap
+        from .model import foot_position
+        t, theta = self.motor_response(gains)
+        ax = AxisMap.from_leg(self.leg)
+        q1 = ax.joint_angle(theta, 0)
+        q2 = ax.joint_angle(-theta, 1)
+        _, y = foot_position(self.leg, q1, q2)
+        f = second_order(t, y)
+        return f.zeta, f.fn
+
+
+def fit_cascade_plant(responses, leg, config) -> CascadePlant:
+    """Fit the motor-side inertia and damping of :class:`CascadePlant` to measured step
+    responses (least squares on both axes' motor positions). Unstable responses are
+    skipped; at least two completed ones are needed."""
+    from scipy.optimize import least_squares
+
+    from .drive import AxisMap
+    done = [r for r in responses if r.completed]
+    if len(done) < 2:
+        raise ValueError(f"need at least two completed step responses, got {len(done)}")
+    ax = AxisMap.from_leg(leg)
+    step = float(done[0].step)
+    meas = []
+    for r in done:
+        th1 = ax.motor_turns(r.q1, 0)
+        th2 = -ax.motor_turns(r.q2, 1)
+        meas.append((r.t, 0.5 * ((th1 - th1[0]) + (th2 - th2[0])), r.gains))
+    plant = CascadePlant(J=1e-3, b=0.0, torque_constant=config.torque_constant,
+                         current_bandwidth=config.current_control_bandwidth,
+                         encoder_bandwidth=config.encoder_bandwidth, leg=leg, step=step,
+                         duration=float(done[0].t[-1] + (done[0].t[1] - done[0].t[0])),
+                         sample_period=float(done[0].t[1] - done[0].t[0]))
+
+    def resid(p):
+        plant.J, plant.b = math.exp(p[0]), p[1]
+        return np.concatenate([plant.motor_response(g, t)[1] - th for t, th, g in meas])
+
+    res = least_squares(resid, [math.log(1e-3), 0.001], bounds=([math.log(1e-6), -0.05], [math.log(1.0), 1.0]))
+    plant.J, plant.b = math.exp(res.x[0]), float(res.x[1])
+    plant.rms_turns = float(np.sqrt(np.mean(res.fun ** 2)))
+    plant.experiments = len(responses)
+    return plant
+
+
+def model_gains_for(plant: CascadePlant, zeta: float, fn: float, vel_integrator_gain: float = 0.01,
+                    bounds=((1.0, 200.0), (1e-4, 1.0))) -> tuple[tuple[float, float, float], tuple[float, float]]:
+    """Gains for a desired (zeta, fn [Hz]) on the fitted plant: the analytic PD answer of
+    J s^2 + (b + Kv) s + Kv Kp (wn^2 = Kv Kp / J, 2 zeta wn = (b + Kv) / J), refined so that
+    the plant's simulated foot response identifies as the target. Returns (gains, the
+    plant's predicted (zeta, fn))."""
+    from scipy.optimize import least_squares
+    wn = 2 * math.pi * fn
+    kv = max(2 * zeta * wn * plant.J - plant.b, 1e-3)
+    kp = wn ** 2 * plant.J / kv
+    lo = np.log([bounds[0][0], bounds[1][0]])
+    hi = np.log([bounds[0][1], bounds[1][1]])
+    x0 = np.clip(np.log([kp, kv]), lo + 1e-6, hi - 1e-6)
+
+    def resid(x):
+        try:
+            z, f = plant.predict((math.exp(x[0]), math.exp(x[1]), vel_integrator_gain))
+        except IdentificationError:
+            return np.array([1.0, 1.0])
+        return np.array([z / zeta - 1, f / fn - 1])
+
+    res = least_squares(resid, x0, bounds=(lo, hi), diff_step=1e-3)
+    gains = (math.exp(res.x[0]), math.exp(res.x[1]), vel_integrator_gain)
+    return gains, plant.predict(gains)
+
+
+@dataclass
+class LegPlantModel:
+    """The leg as the cascade sees it, from a handful of step responses: the nominal
+    five-bar's geometry with fitted inertia and mass scales and joint friction (viscous,
+    Coulomb; the same on both joints), simulated through the same compiled cascade as the
+    twin, without noise. ``params`` holds the fitted values, ``experiments`` how many step
+    responses it took, ``rms_turns`` the fit's motor-position residual."""
+
+    params: dict
+    template: object
+    config: object
+    step: float
+    duration: float
+    sample_period: float
+    rms_turns: float
+    experiments: int
+
+    def twin(self):
+        from .twin import Twin
+        p = self.params
+        plant = self.template.replace(inertia_scale=p["inertia_scale"], mass_scale=p["mass_scale"],
+                                      viscous1=p["viscous"], viscous2=p["viscous"], coulomb1=p["coulomb"],
+                                      coulomb2=p["coulomb"], stribeck1=0.0, stribeck2=0.0, payload_mass=0.0)
+        return Twin(plant, self.config, noise=False)
+
+    def responses(self, gains):
+        """Simulated :class:`leglib.odrive_io.StepResponse` for each gain triple (batch)."""
+        from .odrive_io import StepResponse
+        from .model import foot_position
+        tw = self.twin()
+        g = np.atleast_2d(gains)
+        out = tw.step_batch(g, step_turns=self.step, duration=self.duration, sample_period=self.sample_period,
+                            vel_limit=self.config.step_vel_limit, abort_error_turns=2 * abs(self.step))
+        ax = tw.axes
+        res = []
+        for i in range(len(g)):
+            q1 = ax.counts_to_joint(out["counts"][i, :, ax.axis_of_joint[0]], 0)
+            q2 = ax.counts_to_joint(out["counts"][i, :, ax.axis_of_joint[1]], 1)
+            _, y = foot_position(tw.nominal_leg, q1, q2)
+            res.append(StepResponse(t=out["t"], q1=q1, q2=q2, y=y, gains=tuple(g[i]), step=self.step,
+                                    completed=bool(out["abort_tick"][i] < 0)))
+        return res
+
+    def predict(self, gains) -> tuple[float, float]:
+        """(zeta, fn [Hz]) the model predicts for one gain triple (NaN if unstable)."""
+        r = self.responses([gains])[0]
+        if not r.completed:
+            return math.nan, math.nan
+        f = second_order(r.t, r.y)
+        return f.zeta, f.fn
+
+    def gains_for(self, zeta: float, fn: float, vel_integrator_gain: float = 0.01, start=None):
+        """Gains giving (zeta, fn [Hz]) on the model: Kp, Kv solved (log space, bounded by
+        the configuration) from the analytic PD start; returns (gains, predicted (zeta, fn))."""
+        from scipy.optimize import least_squares
+        cfg = self.config
+        lo = np.log([1.0, 1e-3])
+        hi = np.log([cfg.max_pos_gain, cfg.max_vel_gain])
+        if start is None:
+            # PD on the nominal joint inertia seen at the motor: wn^2 = Kv Kp / J, 2 zeta wn J = Kv
+            J = 2 * math.pi * 0.0015 * self.params["inertia_scale"] / 9.0
+            wn = 2 * math.pi * fn
+            kv = 2 * zeta * wn * J
+            start = (wn ** 2 * J / kv, kv)
+        x0 = np.clip(np.log(start), lo + 1e-6, hi - 1e-6)
+
+        def resid(x):
+            try:
+                z, f = self.predict((math.exp(x[0]), math.exp(x[1]), vel_integrator_gain))
+            except IdentificationError:
+                return np.array([2.0, 2.0])
+            if not np.isfinite(z):
+                return np.array([2.0, 2.0])
+            return np.array([z / zeta - 1, f / fn - 1])
+
+        res = least_squares(resid, x0, bounds=(lo, hi), diff_step=1e-3, max_nfev=60)
+        gains = (math.exp(res.x[0]), math.exp(res.x[1]), vel_integrator_gain)
+        return gains, self.predict(gains)
+
+
+def fit_leg_plant(responses, config, template="default") -> LegPlantModel:
+    """Fit :class:`LegPlantModel` to measured step responses (least squares on both axes'
+    motor positions). ``template`` supplies the structure (base leg, stops); its friction,
+    inertia and mass values are not used. Unstable responses are skipped."""
+    from scipy.optimize import least_squares
+
+    from .drive import AxisMap
+    from .params import load_plant
+    template = load_plant(template) if isinstance(template, str) else template
+    done = [r for r in responses if r.completed]
+    if len(done) < 2:
+        raise ValueError(f"need at least two completed step responses, got {len(done)}")
+    r0 = done[0]
+    dt = float(r0.t[1] - r0.t[0])
+    model = LegPlantModel(params={}, template=template, config=config, step=float(r0.step),
+                          duration=float(len(r0.t) * dt), sample_period=dt, rms_turns=math.nan,
+                          experiments=len(responses))
+    ax = AxisMap.from_leg(template.base_leg())
+    meas = np.concatenate([np.concatenate([ax.motor_turns(r.q1, 0), ax.motor_turns(r.q2, 1)]) for r in done])
+    gains = np.array([r.gains for r in done])
+    names = ("inertia_scale", "mass_scale", "viscous", "coulomb")
+
+    def resid(x):
+        model.params = dict(zip(names, np.exp(x)))
+        sims = model.responses(gains)
+        n = min(len(s.t) for s in sims)
+        sim = np.concatenate([np.concatenate([ax.motor_turns(s.q1, 0), ax.motor_turns(s.q2, 1)]) for s in sims])
+        return sim - meas if sim.size == meas.size and n == len(r0.t) else np.full(meas.size, 1.0)
+
+    x0 = np.log([1.0, 1.0, 0.003, 0.01])
+    res = least_squares(resid, x0, bounds=(np.log([0.2, 0.2, 1e-5, 1e-5]), np.log([5.0, 5.0, 0.2, 0.3])),
+                        diff_step=1e-3)
+    model.params = dict(zip(names, map(float, np.exp(res.x))))
+    model.rms_turns = float(np.sqrt(np.mean(res.fun ** 2)))
+    return model
