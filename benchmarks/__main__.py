@@ -62,6 +62,100 @@ def bench_second_order():
     return {**timed(lambda: second_order(t, y), repeat=50), "target_s": 0.005}
 
 
+def bench_sweep_map_pipeline():
+    """The thesis grid on the twin end to end: 400 step simulations, 400 identifications
+    (both cores), the map with gap filling and interpolation, one inverse query
+    (target <= 5 s)."""
+    from leglib import gainmap as GM
+    from leglib import odrive_io as io
+    dev = io.connect("virtual", seed=11)
+    io.apply_configuration(dev)
+    io.calibrate(dev)
+    grid = io.thesis_grid()
+
+    def run():
+        out = dev.raw.step_batch(grid, vel_limit=dev.config.step_vel_limit, abort_error_turns=0.8)
+        gm = GM.GainMap.from_responses(io._responses_from_batch(dev, grid, out, 0.4))
+        gm.gains_for(0.24, 5.0)
+    return {**timed(run, repeat=5), "target_s": 5.0, "points": len(grid)}
+
+
+def _ivp_step(tw, gains, step=0.4, duration=1.5):
+    """Reference: the same cascade and leg as the twin's kernel, but continuous-time (PLL,
+    PI, current lag as ODEs) and integrated point by point with scipy's solve_ivp."""
+    import math
+
+    from scipy.integrate import solve_ivp
+
+    from leglib.model import _fivebar_dynamics
+    kp_g, kv_g, ki_g = gains
+    N, dirn, kt = tw.axes.gear_ratio, tw.axes.direction, tw.motor.torque_constant
+    bw_e, wc = tw.config.encoder_bandwidth, tw.config.current_control_bandwidth
+    kp_e, ki_e = 2 * bw_e, (2 * bw_e) ** 2 / 4
+    P, FR = tw.P, tw.FR
+    qr = tw.axes.q_rest
+    joint = [tw.axes.joint_of_axis(a) for a in (0, 1)]
+    target = [step if joint[a] == 0 else -step for a in (0, 1)]
+
+    def rhs(t, s):
+        q1, dq1, q2, dq2 = s[:4]
+        q, dq = (q1, q2), (dq1, dq2)
+        tau = [0.0, 0.0]
+        d = np.empty(16)
+        d[0], d[1], d[2], d[3] = dq1, 0.0, dq2, 0.0
+        for a in (0, 1):
+            j = joint[a]
+            pe, ve, z, iq = s[4 + 4 * a: 8 + 4 * a]
+            pos = dirn * (q[j] - qr[j]) * N / (2 * math.pi)
+            vd = max(min(kp_g * (target[a] - pe), 12.0), -12.0)
+            torque = kv_g * (vd - ve) + z
+            d[4 + 4 * a] = ve + kp_e * (pos - pe)
+            d[5 + 4 * a] = ki_e * (pos - pe)
+            d[6 + 4 * a] = ki_g * (vd - ve)
+            d[7 + 4 * a] = wc * (torque / kt - iq)
+            tau[j] = dirn * N * kt * iq
+        d11, d12, d22, b1, b2 = _fivebar_dynamics(q1, q2, dq1, dq2, P)[:5]
+        f = [FR[j] * dq[j] + FR[2 + j] * math.tanh(dq[j] / FR[7]) for j in (0, 1)]
+        t1, t2 = tau[0] - b1 - f[0], tau[1] - b2 - f[1]
+        gap = q2 - q1
+        if gap < FR[8]:
+            push = max(FR[9] * (FR[8] - gap) - FR[10] * (dq2 - dq1), 0.0)
+            t1, t2 = t1 - push, t2 + push
+        det = d11 * d22 - d12 * d12
+        d[1] = (d22 * t1 - d12 * t2) / det
+        d[3] = (-d12 * t1 + d11 * t2) / det
+        return d[:12]
+
+    s0 = np.zeros(12)
+    s0[0], s0[2] = qr
+    return solve_ivp(rhs, (0, duration), s0, t_eval=np.arange(0, duration, 0.002), rtol=1e-6, atol=1e-9,
+                     max_step=1e-3)
+
+
+def bench_vs_solve_ivp():
+    """Per-point cost: the twin's batch kernel (400 steps at once) against solve_ivp of the
+    same cascade and leg, one point at a time (8 points, extrapolated); target >= 50x."""
+    from leglib.twin import Twin
+    tw = Twin(seed=1, noise=False)
+    grid = np.array([(p, v, i) for p in (20.0, 50.0) for v in (0.03, 0.08) for i in (0.002, 0.04)])
+    full = np.repeat(grid, 50, axis=0)  # 400 points
+    batch = timed(lambda: tw.step_batch(full), repeat=5)
+    runs = []
+    for g in grid:
+        t0 = time.perf_counter()
+        sol = _ivp_step(tw, g)
+        runs.append(time.perf_counter() - t0)
+        assert sol.success
+    per_ivp = statistics.median(runs)
+    per_twin = batch["median_s"] / len(full)
+    speedup = per_ivp / per_twin
+    print(f"      solve_ivp per point: median {per_ivp * 1e3:.0f} ms (n={len(runs)}), "
+          f"twin per point in a 400-batch: {per_twin * 1e3:.3f} ms -> {speedup:.0f}x")
+    # reported as "time" = twin per-point cost; target = solve_ivp per point / 50
+    return {"median_s": per_twin, "min_s": batch["min_s"] / len(full), "max_s": batch["max_s"] / len(full),
+            "runs": batch["runs"], "target_s": per_ivp / 50, "solve_ivp_per_point_s": per_ivp, "speedup": speedup}
+
+
 BENCHMARKS = {name[6:]: fn for name, fn in globals().items() if name.startswith("bench_")}
 
 

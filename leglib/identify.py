@@ -183,7 +183,7 @@ def second_order(t, y, method: str = "fit") -> SecondOrderFit:
         starts.append((z, 1.8 / max(t50, 1e-3) * (1 + 0.6 * z)))
     best = None
     lo = [1e-3, 1e-2, -np.inf, -np.inf, 0.0]
-    hi = [20.0, 1e4, np.inf, np.inf, 0.5 * t[-1]]
+    hi = [100.0, 1e5, np.inf, np.inf, 0.5 * t[-1]]
     def jac(p):
         # offset and gain enter linearly: exact columns; forward differences for the rest
         z, w, g, off, d = p
@@ -198,7 +198,7 @@ def second_order(t, y, method: str = "fit") -> SecondOrderFit:
         return J
 
     for z0, w0 in starts:
-        x0 = [min(max(z0, 2e-3), 19.0), min(max(w0, 2e-2), 9e3), step, y0, 0.0]
+        x0 = [min(max(z0, 2e-3), 99.0), min(max(w0, 2e-2), 9e4), step, y0, 0.0]
         res = least_squares(lambda p: _model(t, *p) - y, x0, jac=jac, bounds=(lo, hi), method="trf",
                             x_scale=[0.1, max(w0, 1.0) * 0.1, abs(step), abs(step), 0.005])
         if best is None or res.cost < best.cost:
@@ -646,16 +646,24 @@ def fit_leg_friction(run, leg, model: str = "coulomb_viscous", cross: bool = Fal
                           n=int(r.size), n_eff=effective_samples(r), ssr=ssr, leg=fitted_leg, friction=F, start=start, v_smooth=d["v_smooth"])
 
 
-def choose_friction_model(plain: LegFrictionFit, stribeck: LegFrictionFit, min_effect: float = 0.05):
+def choose_friction_model(plain: LegFrictionFit, stribeck: LegFrictionFit, min_effect: float = 0.2):
     """Pick between a Coulomb + viscous fit and a Stribeck fit of the same data.
 
     The Stribeck model is chosen only when AIC (common effective n) favours it by more
     than 2 *and* its breakaway terms are material: at least ``min_effect`` of the Coulomb
-    friction on some joint. A trajectory fit's residuals carry process noise, so tiny extra
-    terms can win on AIC alone. Returns (chosen fit, reason).
+    friction on some joint (real breakaway friction is typically 20-50 % above Coulomb), and
+    its Stribeck velocity must be clearly wider than the Coulomb smoothing width. A
+    trajectory fit's residuals carry process noise, and near zero speed a small Stribeck
+    term mimics a different Coulomb smoothing width, so small extra terms can win on AIC
+    alone. Returns (chosen fit, reason).
     """
     cmp = compare_friction_models({"plain": plain, "stribeck": stribeck})
     delta = cmp["plain"][1] - cmp["stribeck"][1]   # > 0: AIC favours Stribeck
+    vs, vc = stribeck.params["v_stribeck"], stribeck.params["v_smooth"]
+    if vs < 3 * vc:
+        return plain, (f"the Stribeck term acts only within {vs:.3g} rad/s, about the Coulomb smoothing "
+                       f"width {vc:.3g} rad/s: it reshapes the friction law at zero speed rather than "
+                       f"adding breakaway friction; keep the simpler model")
     effect = max(stribeck.params["stribeck1"] / max(stribeck.params["coulomb1"], 1e-12),
                  stribeck.params["stribeck2"] / max(stribeck.params["coulomb2"], 1e-12))
     if delta > 2 and effect >= min_effect:

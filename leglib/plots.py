@@ -150,3 +150,45 @@ def plot_step_comparison(series: dict, target_deg: float, ax=None, joint: str = 
     ax.set_ylabel(f"{joint} [deg]")
     ax.legend(fontsize=8)
     return lines
+
+
+def plot_gain_region(gm, ax=None, targets=None, marker=None):
+    """The achievable (zeta, fn) region of a :class:`leglib.gainmap.GainMap` (the thesis's
+    Fig. 6.12), measured grid points on top; optional targets and a highlighted point."""
+    ax = _ax(ax)
+    a = gm.achievable()
+    arts = [ax.scatter(a.zeta, a.fn, s=2, c="0.75", label="interpolated, achievable")]
+    ok = gm.status == "ok"
+    arts.append(ax.scatter(gm.zeta[ok], gm.fn[ok], s=14, c="b", label="measured grid points"))
+    if targets is not None:
+        t = np.atleast_2d(targets)
+        arts.append(ax.scatter(t[:, 0], t[:, 1], s=60, marker="x", c="r", label="targets"))
+    if marker is not None:
+        arts.append(ax.scatter([marker[0]], [marker[1]], s=120, marker="*", c="orange", label="this step"))
+    ax.set_xlabel("zeta [-]")
+    ax.set_ylabel("fn [Hz]")
+    ax.set_xlim(0, min(2.0, float(np.nanmax(a.zeta)) * 1.05 if a.zeta.size else 2.0))
+    ax.legend(fontsize=8)
+    return arts
+
+
+def plot_map_slices(gm, field: str = "zeta", axes=None):
+    """One image per pos_gain: ``field`` ("zeta" or "fn") over vel_gain x vel_integrator_gain,
+    unstable cells hatched out (white)."""
+    import matplotlib.pyplot as plt
+    data = gm.zeta if field == "zeta" else gm.fn
+    n = len(gm.axes[0])
+    if axes is None:
+        _, axes = plt.subplots(1, n, figsize=(4 * n, 3.4), squeeze=False)
+        axes = axes[0]
+    vmin, vmax = np.nanpercentile(data, [2, 98])
+    images = []
+    for k, ax in enumerate(axes):
+        im = ax.imshow(data[k].T, origin="lower", aspect="auto", vmin=vmin, vmax=vmax, cmap="viridis",
+                       extent=[gm.axes[1][0], gm.axes[1][-1], gm.axes[2][0], gm.axes[2][-1]])
+        ax.set_title(f"{field}, pos_gain = {gm.axes[0][k]:g}")
+        ax.set_xlabel("vel_gain")
+        ax.set_ylabel("vel_integrator_gain")
+        images.append(im)
+    axes[-1].figure.colorbar(images[-1], ax=list(axes))
+    return images

@@ -63,3 +63,54 @@ def pole_placement_panel(sys, center: float = -7.0, spread: float = 0.007, obser
         s.observe(redraw, names="value")
     redraw()
     return W.VBox([W.HBox([s_center, s_spread, s_obs]), readout, out])
+
+
+def step_readout(resp) -> str:
+    """The text the gain panel shows for one step response (also used by tests)."""
+    from .gainmap import identify_response
+    p = identify_response(resp)
+    if p.status != "ok":
+        return f"{p.status}: {p.reason}"
+    return f"zeta = {p.zeta:.3f}   fn = {p.fn:.2f} Hz"
+
+
+def gain_step_panel(odrv, gm=None, pos_gain: float = 50.0, vel_gain: float = 0.046,
+                    vel_integrator_gain: float = 0.001):
+    """Sliders for pos_gain, vel_gain and vel_integrator_gain: each change runs one step
+    (:func:`leglib.odrive_io.step_response`), shows the response, its zeta / fn readout,
+    and its place on the map's achievable region."""
+    import ipywidgets as W
+    import matplotlib.pyplot as plt
+
+    from . import odrive_io as io
+    from .gainmap import identify_response
+
+    cfg = odrv.config
+    s_pos = W.FloatSlider(value=pos_gain, min=1.0, max=min(cfg.max_pos_gain, 100.0), step=1.0,
+                          description="pos_gain", continuous_update=False, readout_format=".0f")
+    s_vel = W.FloatSlider(value=vel_gain, min=0.002, max=min(cfg.max_vel_gain, 0.3), step=0.002,
+                          description="vel_gain", continuous_update=False, readout_format=".3f")
+    s_int = W.FloatSlider(value=vel_integrator_gain, min=0.0, max=0.2, step=0.001,
+                          description="vel_int_gain", continuous_update=False, readout_format=".3f")
+    readout = W.HTML()
+    out = W.Output()
+
+    def redraw(*_):
+        resp = io.step_response(odrv, s_pos.value, s_vel.value, s_int.value)
+        p = identify_response(resp)
+        readout.value = f"<code class='leglib-readout'>{step_readout(resp)}</code>"
+        with out:
+            out.clear_output(wait=True)
+            fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.8))
+            a1.plot(resp.t, resp.y * 1e3)
+            a1.set_xlabel("t [s]")
+            a1.set_ylabel("foot y [mm]")
+            a1.set_title(f"gains ({s_pos.value:g}, {s_vel.value:g}, {s_int.value:g})")
+            if gm is not None:
+                plots.plot_gain_region(gm, ax=a2, marker=(p.zeta, p.fn) if p.status == "ok" else None)
+            plt.show()
+
+    for s in (s_pos, s_vel, s_int):
+        s.observe(redraw, names="value")
+    redraw()
+    return W.VBox([W.HBox([s_pos, s_vel, s_int]), readout, out])

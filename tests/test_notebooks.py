@@ -87,7 +87,8 @@ def test_02_friction_fitting(processed):
     tmp_path, m = processed
     assert m["backend"] == "virtual"
     for name, rel in m["recovery_rel_error"].items():
-        assert abs(rel) < 0.05, (name, rel)
+        if name != "v_smooth":  # the model's smoothing width, not a friction coefficient
+            assert abs(rel) < 0.05, (name, rel)
     assert max(m["rms_deg"]) < 0.1 < min(m["rms_before_deg"])
     assert m["preferred_model"] == "coulomb_viscous"  # the twin has no Stribeck friction
     sj = m["single_joint"]
@@ -111,3 +112,32 @@ def test_03_pole_placement(processed, tmp_path):
     assert runs["thesis design: playback"]["overshoot_pct"] > 3 * runs["identified: playback"]["overshoot_pct"]
     assert 400 < m["live_rate_hz"] < 600
     assert m["readout"].startswith("K = [")
+
+
+@pytest.fixture(scope="module")
+def sweep04(tmp_path_factory):
+    out = tmp_path_factory.mktemp("nb04")
+    m = _run(NOTEBOOKS[3], out, sweep_dir=str(out / "sweep"))
+    return out, m
+
+
+@pytest.mark.notebook
+def test_04_pid_sweeps(sweep04):
+    _, m = sweep04
+    assert m["points"] == 32 and sum(m["counts"].values()) == 32
+    under, over = m["bldc"]["(100.0, 0.1, 10.0)"], m["bldc"]["(8.0, 5.0, 0.3)"]
+    assert under["overshoot_pct"] > 10 and under["zeta"] < 1       # thesis Fig. 6.8a
+    assert over["overshoot_pct"] < 0.5                              # thesis Fig. 6.8b
+    assert m["achievable"] > 0 and m["zeta_range"][0] > 0 and m["fn_range"][0] > 0
+
+
+@pytest.mark.notebook
+def test_05_validation(sweep04, tmp_path):
+    out04, _ = sweep04
+    m = _run(NOTEBOOKS[4], tmp_path, sweep_dir=str(out04 / "sweep"))
+    assert len(m["targets"]) == 5
+    # the smoke map is a 2 x 4 x 4 grid: coarse; the model needs no grid
+    assert m["summary"]["map"]["worst"] < 0.5
+    assert m["summary"]["model"]["worst"] < 0.1
+    assert set(m["thesis_target"]) >= {"gains", "zeta", "fn", "error_zeta", "error_fn"}
+    assert m["summary"]["model"]["experiments"] < m["summary"]["map"]["experiments"]
