@@ -29,12 +29,19 @@ def timed(fn, repeat: int) -> dict:
     return {"median_s": statistics.median(runs), "min_s": min(runs), "max_s": max(runs), "runs": repeat}
 
 
+def _device(seed: int):
+    """A configured, calibrated virtual ODrive."""
+    from leglib import odrive_io as io
+    dev = io.connect("virtual", seed=seed)
+    io.apply_configuration(dev)
+    io.calibrate(dev)
+    return dev
+
+
 def bench_twin_single_step():
     """One 1.5 s step on the twin through odrive_io (target <= 50 ms)."""
     from leglib import odrive_io as io
-    dev = io.connect("virtual", seed=1)
-    io.apply_configuration(dev)
-    io.calibrate(dev)
+    dev = _device(1)
     r = timed(lambda: io.step_response(dev, 50, 0.046, 0.001), repeat=15)
     return {**r, "target_s": 0.050}
 
@@ -43,9 +50,7 @@ def bench_twin_thesis_grid():
     """The thesis grid, 4 x 10 x 10 = 400 steps of 1.5 s, through odrive_io.sweep's batch
     path without writing files (target <= 5 s)."""
     from leglib import odrive_io as io
-    dev = io.connect("virtual", seed=1)
-    io.apply_configuration(dev)
-    io.calibrate(dev)
+    dev = _device(1)
     grid = io.thesis_grid()
 
     def run():
@@ -68,9 +73,7 @@ def bench_sweep_map_pipeline():
     (target <= 5 s)."""
     from leglib import gainmap as GM
     from leglib import odrive_io as io
-    dev = io.connect("virtual", seed=11)
-    io.apply_configuration(dev)
-    io.calibrate(dev)
+    dev = _device(11)
     grid = io.thesis_grid()
 
     def run():

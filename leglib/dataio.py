@@ -131,28 +131,41 @@ def write_table(path: str | Path, data) -> Path:
     return path
 
 
-def read_table(path: str | Path, columns: int) -> np.ndarray:
-    """Read a numeric CSV with ``columns`` columns; MeasurementError naming file and line."""
-    path = Path(path)
-    if not path.exists():
-        raise MeasurementError(f"{path}: file not found")
+def _read_rows(path: Path, columns: int, names: str = "", increasing_first: bool = False) -> np.ndarray:
+    """Parse a numeric CSV strictly: MeasurementError naming file and line for a wrong
+    column count, a non-number, NaN or infinity, or (``increasing_first``) a first column
+    that does not increase."""
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise MeasurementError(f"{path}: file not found") from None
+    except UnicodeDecodeError:
+        raise MeasurementError(f"{path}: not a text file") from None
     rows = []
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+    for lineno, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue
         parts = line.split(",")
         if len(parts) != columns:
-            raise MeasurementError(f"{path}:{lineno}: expected {columns} columns, got {len(parts)}")
+            raise MeasurementError(f"{path}:{lineno}: expected {columns} comma-separated columns {names}, "
+                                   f"got {len(parts)}: {line!r}")
         try:
             vals = [float(p) for p in parts]
         except ValueError:
             raise MeasurementError(f"{path}:{lineno}: not a number in {line!r}") from None
         if not all(math.isfinite(v) for v in vals):
-            raise MeasurementError(f"{path}:{lineno}: NaN or infinite value")
+            raise MeasurementError(f"{path}:{lineno}: NaN or infinite value in {line!r}")
+        if increasing_first and rows and vals[0] <= rows[-1][0]:
+            raise MeasurementError(f"{path}:{lineno}: time {vals[0]} does not increase (previous {rows[-1][0]})")
         rows.append(vals)
     if not rows:
         raise MeasurementError(f"{path}: no data rows")
     return np.array(rows)
+
+
+def read_table(path: str | Path, columns: int) -> np.ndarray:
+    """Read a numeric CSV with ``columns`` columns; MeasurementError naming file and line."""
+    return _read_rows(Path(path), columns)
 
 
 def _json_default(o):
@@ -195,31 +208,8 @@ def read_measurement(path: str | Path) -> Measurement:
     """
     path = Path(path)
     _, name_gains = parse_filename(path)
-    rows = []
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise MeasurementError(f"{path}: file not found") from None
-    except UnicodeDecodeError:
-        raise MeasurementError(f"{path}: not a text file") from None
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        if not line.strip():
-            continue
-        parts = line.split(",")
-        if len(parts) != 3:
-            raise MeasurementError(f"{path}:{lineno}: expected 3 comma-separated columns "
-                                   f"(time, angle1, angle2), got {len(parts)}: {line!r}")
-        try:
-            vals = [float(p) for p in parts]
-        except ValueError:
-            raise MeasurementError(f"{path}:{lineno}: not a number in {line!r}") from None
-        if not all(math.isfinite(v) for v in vals):
-            raise MeasurementError(f"{path}:{lineno}: NaN or infinite value in {line!r}")
-        if rows and vals[0] <= rows[-1][0]:
-            raise MeasurementError(f"{path}:{lineno}: time {vals[0]} does not increase "
-                                   f"(previous {rows[-1][0]})")
-        rows.append(vals)
-    if len(rows) < 2:
+    data = _read_rows(path, 3, "(time, angle1, angle2)", increasing_first=True)
+    if len(data) < 2:
         raise MeasurementError(f"{path}: fewer than two data rows")
     meta = {}
     side = path.with_suffix(".json")
@@ -228,7 +218,6 @@ def read_measurement(path: str | Path) -> Measurement:
             meta = json.loads(side.read_text())
         except json.JSONDecodeError as exc:
             raise MeasurementError(f"{side}: sidecar is not valid JSON: {exc}") from None
-    data = np.array(rows)
     gains = tuple(meta["gains"]) if meta.get("gains") else name_gains
     return Measurement(path=path, t=data[:, 0], angle1=data[:, 1], angle2=data[:, 2],
                        gains=gains, meta=meta)
