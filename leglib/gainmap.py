@@ -533,3 +533,13 @@ def fit_leg_plant(responses, config, template="default") -> LegPlantModel:
     model.params = dict(zip(names, map(float, np.exp(res.x))))
     model.rms_turns = float(np.sqrt(np.mean(res.fun ** 2)))
     return model
+
+
+def fitting_gains(count: int = 5, pos_range=(25.0, 50.0), vel_range=(0.03, 0.15),
+                  vel_integrator_gain: float = 0.01) -> np.ndarray:
+    """``count`` gain triples for fitting :class:`LegPlantModel`: pos_gain and vel_gain
+    spread over moderate, stable ranges in different orders (so damping and stiffness vary
+    independently across the experiments), a small fixed integrator gain."""
+    pos = np.linspace(*pos_range, count)
+    vel = np.roll(np.linspace(*vel_range, count)[::-1], 1)
+    return np.column_stack([pos, vel, np.full(count, vel_integrator_gain)])
