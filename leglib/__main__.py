@@ -1,4 +1,5 @@
-"""Command line: ``python -m leglib run`` executes every notebook into reports/."""
+"""Command line: ``python -m leglib run`` executes every notebook into reports/;
+``python -m leglib batch SPEC [--scheduler tcp://...]`` runs notebooks over a grid."""
 
 from __future__ import annotations
 
@@ -12,7 +13,20 @@ def main(argv: list[str] | None = None) -> int:
     run = sub.add_parser("run", help="execute every notebook against the virtual leg")
     run.add_argument("--out", default="reports", help="output directory (default: reports)")
     run.add_argument("--smoke", action="store_true", help="short runs (the tests' mode)")
+    batch = sub.add_parser("batch", help="run notebooks over a parameter grid (see leglib.batch)")
+    batch.add_argument("spec", help="batch spec (TOML)")
+    batch.add_argument("--out", default="reports/batch", help="output root (default: reports/batch)")
+    batch.add_argument("--scheduler", default=None, help="Dask scheduler address, e.g. tcp://host:8786")
+    batch.add_argument("--workers", type=int, default=2, help="local processes (without --scheduler)")
     args = parser.parse_args(argv)
+    if args.command == "batch":
+        from .batch import run_batch
+        results = run_batch(args.spec, args.out, scheduler=args.scheduler, workers=args.workers)
+        failed = {k: v for k, v in results.items() if v.get("status") != "done"}
+        for k, v in failed.items():
+            print(f"FAILED {k}: {v.get('notebook')} cell {v.get('cell')}: {v.get('error')}")
+        print(f"{len(results) - len(failed)} runs done, {len(failed)} failed; index in {args.out}")
+        return 1 if failed else 0
     if args.command == "run":
         from .notebooks import run_all
         for path in run_all(args.out, smoke=args.smoke):

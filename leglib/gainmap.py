@@ -421,9 +421,9 @@ def model_gains_for(plant: CascadePlant, zeta: float, fn: float, vel_integrator_
 @dataclass
 class LegPlantModel:
     """The leg as the cascade sees it, from a handful of step responses: the nominal
-    five-bar's geometry with fitted inertia and mass scales and joint friction (viscous,
-    Coulomb; the same on both joints), simulated through the same compiled cascade as the
-    twin, without noise. ``params`` holds the fitted values, ``experiments`` how many step
+    five-bar's geometry with a fitted inertia scale, a payload on the foot [kg] and joint
+    friction (viscous, Coulomb; the same on both joints), simulated through the same
+    compiled cascade as the twin, without noise or quantization. ``params`` holds the fitted values, ``experiments`` how many step
     responses it took, ``rms_turns`` the fit's motor-position residual."""
 
     params: dict
@@ -438,10 +438,12 @@ class LegPlantModel:
     def twin(self):
         from .twin import Twin
         p = self.params
-        plant = self.template.replace(inertia_scale=p["inertia_scale"], mass_scale=p["mass_scale"],
+        plant = self.template.replace(inertia_scale=p["inertia_scale"], mass_scale=1.0,
                                       viscous1=p["viscous"], viscous2=p["viscous"], coulomb1=p["coulomb"],
-                                      coulomb2=p["coulomb"], stribeck1=0.0, stribeck2=0.0, payload_mass=0.0)
-        return Twin(plant, self.config, noise=False)
+                                      coulomb2=p["coulomb"], stribeck1=0.0, stribeck2=0.0,
+                                      payload_mass=p["payload_mass"])
+        # exact positions: finite differences of the fit must see small parameter changes
+        return Twin(plant, self.config, noise=False, quantize=False)
 
     def responses(self, gains):
         """Simulated :class:`leglib.odrive_io.StepResponse` for each gain triple (batch)."""
@@ -462,11 +464,15 @@ class LegPlantModel:
         return res
 
     def predict(self, gains) -> tuple[float, float]:
-        """(zeta, fn [Hz]) the model predicts for one gain triple (NaN if unstable)."""
+        """(zeta, fn [Hz]) the model predicts for one gain triple (NaN if unstable or not a
+        second-order step)."""
         r = self.responses([gains])[0]
         if not r.completed:
             return math.nan, math.nan
-        f = second_order(r.t, r.y)
+        try:
+            f = second_order(r.t, r.y)
+        except IdentificationError:
+            return math.nan, math.nan
         return f.zeta, f.fn
 
     def gains_for(self, zeta: float, fn: float, vel_integrator_gain: float = 0.01, start=None):
@@ -478,17 +484,14 @@ class LegPlantModel:
         hi = np.log([cfg.max_pos_gain, cfg.max_vel_gain])
         if start is None:
             # PD on the nominal joint inertia seen at the motor: wn^2 = Kv Kp / J, 2 zeta wn J = Kv
-            J = 2 * math.pi * 0.0015 * self.params["inertia_scale"] / 9.0
+            J = 2 * math.pi * (0.0015 * self.params["inertia_scale"] + 0.06 * self.params["payload_mass"]) / 9.0
             wn = 2 * math.pi * fn
             kv = 2 * zeta * wn * J
             start = (wn ** 2 * J / kv, kv)
         x0 = np.clip(np.log(start), lo + 1e-6, hi - 1e-6)
 
         def resid(x):
-            try:
-                z, f = self.predict((math.exp(x[0]), math.exp(x[1]), vel_integrator_gain))
-            except IdentificationError:
-                return np.array([2.0, 2.0])
+            z, f = self.predict((math.exp(x[0]), math.exp(x[1]), vel_integrator_gain))
             if not np.isfinite(z):
                 return np.array([2.0, 2.0])
             return np.array([z / zeta - 1, f / fn - 1])
@@ -518,7 +521,7 @@ def fit_leg_plant(responses, config, template="default") -> LegPlantModel:
     ax = AxisMap.from_leg(template.base_leg())
     meas = np.concatenate([np.concatenate([ax.motor_turns(r.q1, 0), ax.motor_turns(r.q2, 1)]) for r in done])
     gains = np.array([r.gains for r in done])
-    names = ("inertia_scale", "mass_scale", "viscous", "coulomb")
+    names = ("inertia_scale", "payload_mass", "viscous", "coulomb")
 
     def resid(x):
         model.params = dict(zip(names, np.exp(x)))
@@ -527,8 +530,8 @@ def fit_leg_plant(responses, config, template="default") -> LegPlantModel:
         sim = np.concatenate([np.concatenate([ax.motor_turns(s.q1, 0), ax.motor_turns(s.q2, 1)]) for s in sims])
         return sim - meas if sim.size == meas.size and n == len(r0.t) else np.full(meas.size, 1.0)
 
-    x0 = np.log([1.0, 1.0, 0.003, 0.01])
-    res = least_squares(resid, x0, bounds=(np.log([0.2, 0.2, 1e-5, 1e-5]), np.log([5.0, 5.0, 0.2, 0.3])),
+    x0 = np.log([1.0, 0.05, 0.003, 0.01])
+    res = least_squares(resid, x0, bounds=(np.log([0.2, 1e-4, 1e-5, 1e-5]), np.log([5.0, 5.0, 0.2, 0.3])),
                         diff_step=1e-3)
     model.params = dict(zip(names, map(float, np.exp(res.x))))
     model.rms_turns = float(np.sqrt(np.mean(res.fun ** 2)))

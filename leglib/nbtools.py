@@ -113,3 +113,13 @@ def matrix_comparison_markdown(name: str, ours, theirs, digits: int = 2) -> str:
         err = ", ".join("—" if v == 0 else f"{abs(a - v) / abs(v):.1e}" for a, v in zip(ours[i], theirs[i]))
         rows.append(f"| {i} | {o} | {t} | {err} |")
     return "\n".join(rows)
+
+
+def device_options(backend: str, seed: int, plant: str, payload_mass: float = 0.0) -> dict:
+    """The ``connect`` options a notebook's parameters ask for: on the twin its seed and its
+    plant (with a payload on the foot [kg]); nothing for the real leg, where a payload is
+    mounted by hand."""
+    if backend != "virtual":
+        return {}
+    from .params import load_plant
+    return {"seed": seed, "plant": load_plant(plant, payload_mass=float(payload_mass))}

@@ -42,7 +42,8 @@ N_CFG = 14
 S_POS_EST, S_VEL_EST, S_INTEGRATOR, S_IQ, S_WD_TIMER, S_IQ_MEAS = range(6)
 S_OSC = 6           # N_OSC slots of the oscillation monitor (see oscillation_update)
 N_OSC = 6
-N_AXSTATE = S_OSC + N_OSC
+S_COUNT_F = S_OSC + N_OSC  # the encoder reading as a float (equal to the counts when quantized)
+N_AXSTATE = S_COUNT_F + 1
 # int state per axis: AI[b, axis, k]
 I_MODE, I_AXIS_ERR, I_CTRL_ERR, I_MOTOR_ERR, I_COUNTS = range(5)
 N_AXINT = 5
@@ -137,7 +138,7 @@ def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
     P[b] the true leg's parameter vector; FR[b] = (visc1, visc2, coul1, coul2, strib1,
     strib2, v_stribeck, v_smooth, gap_min, k_stop, c_stop, J1, J2, gap_max); MECH[b] 0 five-bar,
     1 independent inertias; DRV = (gear_ratio, cpr, direction, q_rest1, q_rest2,
-    joint_of_axis0, encoder_noise, current_noise, true torque constant); TT[b, i, axis] a torque table applied
+    joint_of_axis0, encoder_noise, current_noise, true torque constant, quantize); TT[b, i, axis] a torque table applied
     to axes in torque mode, row i = tick // tt_period (ignored when it has no rows);
     REC[b, k] = (t, counts0, counts1, Iq0, Iq1) every ``rec_every`` ticks from row
     ``rec_offset``. Returns nothing; everything is updated in place.
@@ -162,8 +163,8 @@ def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
                 r = rec_offset + k // rec_every
                 if r < n_rec:
                     REC[b, r, 0] = X[b, 4]
-                    REC[b, r, 1] = AI[b, 0, I_COUNTS]
-                    REC[b, r, 2] = AI[b, 1, I_COUNTS]
+                    REC[b, r, 1] = AS[b, 0, S_COUNT_F]
+                    REC[b, r, 2] = AS[b, 1, S_COUNT_F]
                     REC[b, r, 3] = AS[b, 0, S_IQ_MEAS]
                     REC[b, r, 4] = AS[b, 1, S_IQ_MEAS]
             abort_now = False
@@ -172,8 +173,10 @@ def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
                 j = j_of_a0 if a == 0 else 1 - j_of_a0
                 q = X[b, 2 * j]
                 turns = dirn * (q - DRV[3 + j]) * N / two_pi
-                counts = math.floor(turns * cpr + enc_noise * _normal(RNG, b) + 0.5)
-                AI[b, a, I_COUNTS] = np.int64(counts)
+                raw = turns * cpr + enc_noise * _normal(RNG, b)
+                counts = math.floor(raw + 0.5) if DRV[9] > 0.0 else raw
+                AI[b, a, I_COUNTS] = np.int64(math.floor(raw + 0.5))
+                AS[b, a, S_COUNT_F] = counts
                 # PLL estimator (firmware: kp = 2 bw, ki = kp^2 / 4)
                 kp = 2.0 * C[b, a, C_ENCODER_BW]
                 ki = 0.25 * kp * kp
@@ -363,10 +366,14 @@ class Twin:
     config : OdriveConfig or name, the ODrive configuration (default Listing 7.1)
     batch : number of legs
     seed : base seed of the noise streams
+    noise : encoder and current noise on
+    quantize : encoder readings quantized at the CPR (False: exact positions, for models
+        fitted by finite differences)
     """
 
     def __init__(self, plant: PlantParams | str = "default", config: OdriveConfig | str = "thesis",
-                 batch: int = 1, seed: int = 0, noise: bool = True, motor: MotorParams | str = "mn5212"):
+                 batch: int = 1, seed: int = 0, noise: bool = True, motor: MotorParams | str = "mn5212",
+                 quantize: bool = True):
         self.plant = load_plant(plant) if isinstance(plant, str) else plant
         self.motor = load_motor(motor) if isinstance(motor, str) else motor
         self.config = load_odrive_config(config) if isinstance(config, str) else config
@@ -389,7 +396,7 @@ class Twin:
         motor = self.motor
         self.DRV = np.array([ax.gear_ratio, ax.cpr, ax.direction, ax.q_rest[0], ax.q_rest[1],
                              ax.joint_of_axis(0), p.encoder_noise if noise else 0.0,
-                             p.current_noise if noise else 0.0, motor.torque_constant])
+                             p.current_noise if noise else 0.0, motor.torque_constant, 1.0 if quantize else 0.0])
         self.state = self._initial_state(batch)
 
     # -- state -----------------------------------------------------------------------

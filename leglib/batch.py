@@ -1,0 +1,203 @@
+"""Batch re-runs of notebooks over a parameter grid, locally or on a Dask cluster.
+
+A spec (TOML)::
+
+    name = "payload"
+    notebooks = ["04_pid_sweeps", "05_validation"]   # run in this order, in one run directory
+    [parameters]                                     # the same for every run
+    smoke = true
+    [grid]                                           # every combination is a run
+    payload_mass = [0.0, 0.5, 1.0]
+
+Each run writes its executed notebooks, figures and metrics JSON under
+``reports/batch/<name>/<run id>/`` and a ``status.json``; a run whose status says
+"done" is skipped when the batch is re-run. A failing run records the notebook and cell
+that failed and does not stop the others. ``index.html`` and ``summary.png`` list all runs.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import tomllib
+from pathlib import Path
+
+from .nbtools import write_json_atomic
+
+
+class SpecError(ValueError):
+    """A batch spec is malformed."""
+
+
+def load_spec(path: str | Path) -> dict:
+    """Read and check a batch spec; SpecError names the file and the field."""
+    from .notebooks import NOTEBOOK_DIR
+    path = Path(path)
+    try:
+        spec = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise SpecError(f"{path}: spec not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{path}: not valid TOML: {exc}") from None
+    name = spec.get("name")
+    if not isinstance(name, str) or not name or "/" in name:
+        raise SpecError(f"{path}: field 'name' must be a non-empty string without '/'")
+    nbs = spec.get("notebooks")
+    if not isinstance(nbs, list) or not nbs:
+        raise SpecError(f"{path}: field 'notebooks' must be a non-empty list of notebook names")
+    for nb in nbs:
+        if not (NOTEBOOK_DIR / f"{nb}.ipynb").exists():
+            raise SpecError(f"{path}: notebook {nb!r} not found in {NOTEBOOK_DIR}")
+    grid = spec.get("grid", {})
+    if not isinstance(grid, dict) or not all(isinstance(v, list) and v for v in grid.values()):
+        raise SpecError(f"{path}: field 'grid' must map parameter names to non-empty lists")
+    if not isinstance(spec.get("parameters", {}), dict):
+        raise SpecError(f"{path}: field 'parameters' must be a table")
+    return {"name": name, "notebooks": nbs, "parameters": spec.get("parameters", {}), "grid": grid}
+
+
+def runs_of(spec: dict) -> list[dict]:
+    """Every combination of the grid, merged over the fixed parameters, with a run id."""
+    keys = sorted(spec["grid"])
+    runs = []
+    for values in itertools.product(*(spec["grid"][k] for k in keys)):
+        params = {**spec["parameters"], **dict(zip(keys, values))}
+        label = "_".join(f"{k}={v}" for k, v in zip(keys, values)) or "run"
+        digest = hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:8]
+        runs.append({"id": f"{label}-{digest}".replace("/", "-"), "params": params, "grid": dict(zip(keys, values))})
+    return runs
+
+
+def run_one(notebooks: list[str], params: dict, out_dir: str) -> dict:
+    """Execute ``notebooks`` in order with ``params`` into ``out_dir``; returns the status
+    (also written to ``status.json``). Never raises for a failing notebook."""
+    import papermill as pm
+
+    from .notebooks import NOTEBOOK_DIR, execute
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    status = {"status": "running", "params": params, "metrics": {}}
+    for nb in notebooks:
+        nb_params = {**params, "figures_dir": str(out / "figures"), "metrics_path": str(out / "metrics" / f"{nb}.json")}
+        for key in ("raw_dir", "sweep_dir", "processed_dir"):
+            nb_params.setdefault(key, str(out / key.replace("_dir", "")))
+        nb_params["identified_path"] = str(out / "processed" / "friction_identified.json")
+        known = set(pm.inspect_notebook(str(NOTEBOOK_DIR / f"{nb}.ipynb")))
+        nb_params = {k: v for k, v in nb_params.items() if k in known}
+        try:
+            execute(NOTEBOOK_DIR / f"{nb}.ipynb", out, nb_params, html=False)
+        except pm.PapermillExecutionError as exc:
+            status.update(status="failed", notebook=nb, cell=int(exc.cell_index),
+                          error=f"{exc.ename}: {exc.evalue}")
+            break
+        except Exception as exc:  # the kernel died, a file was unreadable, ...
+            status.update(status="failed", notebook=nb, cell=None, error=f"{type(exc).__name__}: {exc}")
+            break
+        mpath = out / "metrics" / f"{nb}.json"
+        if mpath.exists():
+            status["metrics"][nb] = json.loads(mpath.read_text())
+    else:
+        status["status"] = "done"
+    write_json_atomic(out / "status.json", status)
+    return status
+
+
+def run_batch(spec_path: str | Path, out_root: str | Path = "reports/batch", scheduler: str | None = None,
+              workers: int = 2, progress: bool = True, cluster=None) -> dict:
+    """Run every grid point of the spec; skip runs already done; write the index.
+
+    ``scheduler``: a Dask scheduler address (``tcp://host:8786``); ``cluster``: a Dask
+    cluster object (tests use a LocalCluster); otherwise local processes (``workers``).
+    Returns {run id: status}.
+    """
+    from tqdm.auto import tqdm
+
+    spec = load_spec(spec_path)
+    root = Path(out_root) / spec["name"]
+    root.mkdir(parents=True, exist_ok=True)
+    runs = runs_of(spec)
+    results, pending = {}, []
+    for r in runs:
+        st = root / r["id"] / "status.json"
+        if st.exists() and json.loads(st.read_text()).get("status") == "done":
+            results[r["id"]] = json.loads(st.read_text())
+        else:
+            pending.append(r)
+    bar = tqdm(total=len(runs), initial=len(runs) - len(pending), desc=f"batch {spec['name']}", unit="run",
+               disable=not progress)
+    args = [(spec["notebooks"], r["params"], str(root / r["id"])) for r in pending]
+    if pending and (scheduler or cluster is not None):
+        from dask.distributed import Client, as_completed
+        client = Client(cluster) if cluster is not None else Client(scheduler)
+        try:
+            futures = {client.submit(run_one, *a, pure=False): r["id"] for a, r in zip(args, pending)}
+            for fut in as_completed(futures):
+                results[futures[fut]] = fut.result()
+                bar.update(1)
+        finally:
+            client.close()
+    elif pending:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+        with ProcessPoolExecutor(max_workers=max(1, workers)) as pool:
+            futures = {pool.submit(run_one, *a): r["id"] for a, r in zip(args, pending)}
+            for fut in as_completed(futures):
+                results[futures[fut]] = fut.result()
+                bar.update(1)
+    bar.close()
+    write_index(root, runs, results)
+    return results
+
+
+def _flatten(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(_flatten(v, key + "."))
+        elif isinstance(v, (int, float)) and not isinstance(v, bool):
+            out[key] = v
+    return out
+
+
+def write_index(root: Path, runs: list[dict], results: dict) -> Path:
+    """``index.html`` (a table of every run: parameters, status, failing cell, metrics) and
+    ``summary.png`` (each numeric metric against the first grid parameter)."""
+    import html
+
+    import matplotlib
+    import matplotlib.pyplot as plt
+    matplotlib.use("Agg")
+    rows, metric_names = [], set()
+    for r in runs:
+        st = results.get(r["id"], {"status": "missing"})
+        flat = _flatten(st.get("metrics", {}))
+        metric_names.update(flat)
+        rows.append((r, st, flat))
+    metrics = sorted(metric_names)[:12]
+    head = ["run", *runs[0]["grid"].keys(), "status", "failure", *metrics] if runs else []
+    lines = ["<html><head><meta charset='utf-8'><title>batch</title></head><body>",
+             f"<h1>batch {html.escape(root.name)}</h1><img src='summary.png'><table border='1'><tr>",
+             "".join(f"<th>{html.escape(h)}</th>" for h in head), "</tr>"]
+    for r, st, flat in rows:
+        fail = "" if st.get("status") == "done" else f"{st.get('notebook', '')} cell {st.get('cell')}: {st.get('error', '')}"
+        cells = [r["id"], *map(str, r["grid"].values()), st.get("status", ""), fail,
+                 *(f"{flat[m]:.4g}" if m in flat else "" for m in metrics)]
+        lines.append("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells) + "</tr>")
+    lines.append("</table></body></html>")
+    (root / "index.html").write_text("\n".join(lines))
+    keys = list(runs[0]["grid"]) if runs else []
+    if keys and metrics:
+        n = len(metrics)
+        fig, axes = plt.subplots(1, n, figsize=(3.2 * n, 3), squeeze=False)
+        for ax, m in zip(axes[0], metrics):
+            pts = [(r["grid"][keys[0]], flat[m]) for r, st, flat in rows if m in flat]
+            if pts:
+                x, y = zip(*pts)
+                ax.plot(x, y, "o")
+            ax.set_xlabel(keys[0])
+            ax.set_title(m, fontsize=7)
+        fig.tight_layout()
+        fig.savefig(root / "summary.png", dpi=90)
+        plt.close(fig)
+    return root / "index.html"

@@ -1,0 +1,59 @@
+"""Batch re-runs: a 6-run grid on a Dask LocalCluster, failures reported, reruns skipped."""
+
+import json
+
+import pytest
+
+from leglib import batch
+
+SPEC = """
+name = "{name}"
+notebooks = ["01_derivation"]
+[parameters]
+smoke = true
+[grid]
+torque_step = [0.002, 0.004, 0.006]
+grid_n = [{bad}, 6]
+"""
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    dd = pytest.importorskip("dask.distributed")
+    c = dd.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
+    yield c
+    c.close()
+
+
+def test_six_runs_on_a_local_cluster_with_a_failure_and_a_rerun(tmp_path, cluster):
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC.format(name="demo", bad=2))  # grid_n = 2 is refused by notebook 01
+    results = batch.run_batch(spec, tmp_path / "out", cluster=cluster, progress=False)
+    assert len(results) == 6
+    done = [r for r in results.values() if r["status"] == "done"]
+    failed = [r for r in results.values() if r["status"] == "failed"]
+    assert len(done) == 3 and len(failed) == 3
+    for r in failed:
+        assert r["notebook"] == "01_derivation" and r["cell"] is not None
+        assert "grid_n" in r["error"]
+    for r in done:
+        assert r["metrics"]["01_derivation"]["eq511_max_rel_error"] < 0.01
+    root = tmp_path / "out" / "demo"
+    index = (root / "index.html").read_text()
+    assert index.count("<tr>") == 7 and "failed" in index
+    assert (root / "summary.png").stat().st_size > 1000
+    # a rerun skips the finished runs and retries the failed ones
+    stamps = {p: p.stat().st_mtime_ns for p in root.glob("*/status.json")
+              if json.loads(p.read_text())["status"] == "done"}
+    batch.run_batch(spec, tmp_path / "out", cluster=cluster, progress=False)
+    assert all(p.stat().st_mtime_ns == t for p, t in stamps.items())
+
+
+def test_bad_specs_are_named(tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_text('name = "x"\nnotebooks = ["99_nope"]\n')
+    with pytest.raises(batch.SpecError, match="notebook '99_nope' not found"):
+        batch.load_spec(p)
+    p.write_text('notebooks = ["01_derivation"]\n')
+    with pytest.raises(batch.SpecError, match="field 'name'"):
+        batch.load_spec(p)
