@@ -123,3 +123,12 @@ def device_options(backend: str, seed: int, plant: str, payload_mass: float = 0.
         return {}
     from .params import load_plant
     return {"seed": seed, "plant": load_plant(plant, payload_mass=float(payload_mass))}
+
+
+def use_repo_root() -> Path:
+    """Make the repository root the working directory, so a notebook's relative paths
+    (``data/...``, ``reports/...``) mean the same opened in JupyterLab (whose kernels start
+    in ``notebooks/``) as under papermill. Returns the root."""
+    from .notebooks import REPO
+    os.chdir(REPO)
+    return REPO
