@@ -481,8 +481,8 @@ class LegFrictionFit:
 
     def simulate(self, run) -> np.ndarray:
         """Simulated (q1, q2) [rad] at the run's sample times from ``start`` on: (M, 2)."""
-        return _simulate_run(run, self.leg, self.friction, self.start,
-                             (self.params["dq1_0"], self.params["dq2_0"]))[1]
+        return simulate_run(run, self.leg, self.friction, self.start,
+                            (self.params["dq1_0"], self.params["dq2_0"]))[1]
 
     def to_dict(self) -> dict:
         return {"model": self.model, "params": self.params, "stderr": self.stderr,
@@ -500,23 +500,37 @@ def compare_friction_models(fits: dict) -> dict:
     return {name: (a, a - best) for name, a in aic.items()}
 
 
-def _simulate_run(run, leg, friction, start, dq0, step=1.25e-4):
-    """Simulate the leg from its measured state at ``start`` under the torque the motors
-    applied (:meth:`TorqueRun.applied_torque`); returns (mask of samples used, (M, 2)
-    simulated q at those samples)."""
-    from .model import simulate_torque_table
-    use = run.t >= start
-    grid = start + step * np.arange(int(math.ceil((run.t[-1] - start) / step)) + 2)
-    if not hasattr(run, "_applied_cache") or run._applied_cache[0] != (start, step):
-        full = run.applied_torque(np.concatenate([np.arange(0.0, start, step), grid]))
-        run._applied_cache = ((start, step), full[-grid.size:])
-    tau = run._applied_cache[1]
-    x0 = (float(np.interp(start, run.t, run.q1)), dq0[0], float(np.interp(start, run.t, run.q2)), dq0[1])
-    sim = simulate_torque_table(leg, x0, tau, step, substeps=1, friction=friction)
-    # each joint at the moment it was read (they are read one after the other)
-    t_read = run.t_read[use] if getattr(run, "t_read", None) is not None else np.column_stack([run.t[use]] * 2)
-    q = np.column_stack([np.interp(t_read[:, 0], grid, sim[:, 0]), np.interp(t_read[:, 1], grid, sim[:, 2])])
-    return use, q
+class RunSimulator:
+    """The leg simulated against one torque run from ``start`` on: the applied torque
+    (:meth:`TorqueRun.applied_torque`) on a ``step`` grid and the read times are prepared
+    once, so a fit can call :meth:`simulate` many times."""
+
+    def __init__(self, run, start: float, step: float = 1.25e-4):
+        self.run, self.start, self.step = run, start, step
+        self.use = run.t >= start
+        self.grid = start + step * np.arange(int(math.ceil((run.t[-1] - start) / step)) + 2)
+        before = np.arange(0.0, start, step)  # the current loop's lag carries over the start
+        self.tau = run.applied_torque(np.concatenate([before, self.grid]))[before.size:]
+        # each joint at the moment it was read (they are read one after the other)
+        t_read = getattr(run, "t_read", None)
+        self.t_read = t_read[self.use] if t_read is not None else np.column_stack([run.t[self.use]] * 2)
+        self.q_start = (float(np.interp(start, run.t, run.q1)), float(np.interp(start, run.t, run.q2)))
+        self.measured = np.column_stack([run.q1[self.use], run.q2[self.use]])
+
+    def simulate(self, leg, friction, dq0) -> np.ndarray:
+        """Simulated (q1, q2) [rad] at the used samples' read times: (M, 2)."""
+        from .model import simulate_torque_table
+        x0 = (self.q_start[0], dq0[0], self.q_start[1], dq0[1])
+        sim = simulate_torque_table(leg, x0, self.tau, self.step, substeps=1, friction=friction)
+        return np.column_stack([np.interp(self.t_read[:, 0], self.grid, sim[:, 0]),
+                                np.interp(self.t_read[:, 1], self.grid, sim[:, 2])])
+
+
+def simulate_run(run, leg, friction, start, dq0):
+    """The leg simulated from its measured state at ``start`` under the torque the motors
+    applied during ``run``; returns (mask of the run's samples used, (M, 2) simulated q)."""
+    sim = RunSimulator(run, start)
+    return sim.use, sim.simulate(leg, friction, dq0)
 
 
 def _leg_part(leg, inertia: bool):
@@ -595,8 +609,8 @@ def fit_leg_friction(run, leg, model: str = "coulomb_viscous", cross: bool = Fal
         hi += [2, 2, 5]
     lo, hi = np.array(lo, float), np.array(hi, float)
     v_smooth0 = 0.005
-    use, _ = _simulate_run(run, leg, np.array([0, 0, 0, 0, 0, 0, v_smooth0], float), start, (0.0, 0.0))
-    qm = np.column_stack([run.q1[use], run.q2[use]])
+    sim = RunSimulator(run, start)
+    qm = sim.measured
 
     def build(p):
         d = dict(zip(names, p))
@@ -609,8 +623,7 @@ def fit_leg_friction(run, leg, model: str = "coulomb_viscous", cross: bool = Fal
 
     def resid(p):
         d, lg, F = build(p)
-        _, q = _simulate_run(run, lg, F, start, (d["dq1_0"], d["dq2_0"]))
-        r = (q - qm).ravel()
+        r = (sim.simulate(lg, F, (d["dq1_0"], d["dq2_0"])) - qm).ravel()
         return np.where(np.isfinite(r), r, 1.0)  # a run that left the valid region fits badly
 
     ee = _equation_error_start(run, leg, start, v_smooth0)
@@ -634,7 +647,7 @@ def fit_leg_friction(run, leg, model: str = "coulomb_viscous", cross: bool = Fal
     d, lg, F = build(best.x)
     fitted_leg = lg.replace(c11=d["viscous1"], c12=d.get("c12", 0.0), c21=d.get("c21", 0.0),
                             c22=d["viscous2"], coulomb1=d["coulomb1"], coulomb2=d["coulomb2"])
-    _, q = _simulate_run(run, lg, F, start, (d["dq1_0"], d["dq2_0"]))
+    q = sim.simulate(lg, F, (d["dq1_0"], d["dq2_0"]))
     r = q - qm
     cov = _covariance(best, r.size)
     se = dict(zip(names, map(float, np.sqrt(np.clip(np.diag(cov), 0, None)))))

@@ -149,10 +149,10 @@ def test_leg_friction_recovers_the_twins_truth_within_5_percent(twin_run):
         assert f.params[name] == pytest.approx(true, rel=0.05), name
     assert max(f.rms_deg) < 0.1 and min(f.r2) > 0.999
     # far better than the nominal chapter-5 model (viscous 0.098, no Coulomb)
-    from leglib.identify import _simulate_run
+    from leglib.identify import simulate_run
     from leglib.model import friction_vector
     leg = load_leg("thesis")
-    use, q_nom = _simulate_run(run, leg, friction_vector(leg), f.start, (f.params["dq1_0"], f.params["dq2_0"]))
+    use, q_nom = simulate_run(run, leg, friction_vector(leg), f.start, (f.params["dq1_0"], f.params["dq2_0"]))
     rms_nom = np.degrees(np.sqrt(np.mean((q_nom[:, 0] - run.q1[use]) ** 2)))
     assert rms_nom > 20 * f.rms_deg[0]
 
