@@ -21,20 +21,26 @@ $(STAMP): environment.txt pyproject.toml
 	$(BIN)/python -m pip install --quiet --no-deps -e .
 	touch $(STAMP)
 
-# System packages: libusb for the odrive package's native part. Installed with apt-get when
-# missing and we are root; otherwise a warning (only the usb backend needs it).
+# System packages, installed with apt-get when missing and we are root (otherwise a warning):
+#   libusb-1.0-0  -- the odrive package's native part (only the usb backend needs it)
+#   chromium      -- the browser test of the notebooks' widgets (tests/test_browser.py)
 sysdeps:
-	@if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so'; then \
+	@missing=""; \
+	ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so' || missing="$$missing libusb-1.0-0"; \
+	command -v chromium >/dev/null || [ -x /usr/bin/chromium ] || missing="$$missing chromium"; \
+	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
-	    echo "installing libusb-1.0-0 (apt-get)"; \
-	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 >/dev/null; \
-	  else echo "warning: libusb-1.0 not found; the usb backend will not work (apt-get install libusb-1.0-0)"; fi; \
+	    echo "installing$$missing (apt-get)"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq$$missing >/dev/null; \
+	  else echo "warning: missing system packages:$$missing (apt-get install$$missing);" \
+	    "the usb backend needs libusb, the browser test chromium"; fi; \
 	fi
 
 run: $(STAMP)
 	$(BIN)/python -m leglib run --out reports
 
 test: $(STAMP)
+	@$(MAKE) --no-print-directory sysdeps
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)

@@ -25,7 +25,10 @@ def main(argv: list[str] | None = None) -> int:
         failed = {k: v for k, v in results.items() if v.get("status") != "done"}
         for k, v in failed.items():
             print(f"FAILED {k}: {v.get('notebook')} cell {v.get('cell')}: {v.get('error')}")
-        print(f"{len(results) - len(failed)} runs done, {len(failed)} failed; index in {args.out}")
+        from pathlib import Path
+        from .batch import load_spec
+        index = Path(args.out).resolve() / load_spec(args.spec)["name"] / "index.html"
+        print(f"{len(results) - len(failed)} runs done, {len(failed)} failed; index: {index}")
         return 1 if failed else 0
     if args.command == "run":
         from .notebooks import run_all

@@ -54,6 +54,13 @@ def load_spec(path: str | Path) -> dict:
         raise SpecError(f"{path}: field 'grid' must map parameter names to non-empty lists")
     if not isinstance(spec.get("parameters", {}), dict):
         raise SpecError(f"{path}: field 'parameters' must be a table")
+    import papermill as pm
+    known = set().union(*(pm.inspect_notebook(str(NOTEBOOK_DIR / f"{nb}.ipynb")) for nb in nbs))
+    for field in ("parameters", "grid"):
+        for key in spec.get(field, {}):
+            if key not in known:
+                raise SpecError(f"{path}: {field}.{key} is not a parameter of {', '.join(nbs)} "
+                                f"(they take: {', '.join(sorted(known))})")
     return {"name": name, "notebooks": nbs, "parameters": spec.get("parameters", {}), "grid": grid}
 
 
@@ -114,7 +121,7 @@ def run_batch(spec_path: str | Path, out_root: str | Path = "reports/batch", sch
     from tqdm.auto import tqdm
 
     spec = load_spec(spec_path)
-    root = Path(out_root) / spec["name"]
+    root = Path(out_root).resolve() / spec["name"]  # absolute: Dask workers run elsewhere
     root.mkdir(parents=True, exist_ok=True)
     runs = runs_of(spec)
     results, pending = {}, []

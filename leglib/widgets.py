@@ -10,10 +10,12 @@ from . import statefeedback as SF
 
 
 def design_readout(d) -> str:
-    """The text the pole-placement panel shows for a design (also used by tests)."""
+    """The text the pole-placement panel shows for a design (also used by tests). Single
+    spaces only, so the text a browser renders is this string exactly."""
     K = " ".join(f"{v:.4f}" for v in d.K.ravel())
     L = " ".join(f"{v:.2f}" for v in d.L.ravel())
-    return f"K = [{K}]  L = [{L}]  Nbar = [{' '.join(f'{v:.4f}' for v in d.Nbar.ravel())}]"
+    Nbar = " ".join(f"{v:.4f}" for v in d.Nbar.ravel())
+    return f"K = [{K}]; L = [{L}]; Nbar = [{Nbar}]"
 
 
 def pole_panel_design(sys, center: float, spread: float, observer_factor: float, integral_poles=None):
@@ -71,7 +73,7 @@ def step_readout(resp) -> str:
     p = identify_response(resp)
     if p.status != "ok":
         return f"{p.status}: {p.reason}"
-    return f"zeta = {p.zeta:.3f}   fn = {p.fn:.2f} Hz"
+    return f"zeta = {p.zeta:.3f}, fn = {p.fn:.2f} Hz"
 
 
 def gain_step_panel(odrv, gm=None, pos_gain: float = 50.0, vel_gain: float = 0.046,

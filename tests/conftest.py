@@ -10,3 +10,18 @@ from leglib.params import load_leg  # noqa: E402
 @pytest.fixture(scope="session")
 def leg():
     return load_leg("thesis")
+
+
+@pytest.fixture(scope="session")
+def processed(tmp_path_factory):
+    """Notebook 02 run once (smoke): its output directory and metrics. Its identified leg
+    (``processed/friction_identified.json``) is what notebook 03 reads."""
+    import json
+
+    from leglib.notebooks import execute, notebook_paths
+
+    nb02 = notebook_paths()[1]
+    out = tmp_path_factory.mktemp("nb02")
+    execute(nb02, out, {"smoke": True, "raw_dir": str(out / "raw"), "processed_dir": str(out / "processed")},
+            html=False)
+    return out, json.loads((out / "metrics" / f"{nb02.stem}.json").read_text())

@@ -57,3 +57,9 @@ def test_bad_specs_are_named(tmp_path):
     p.write_text('notebooks = ["01_derivation"]\n')
     with pytest.raises(batch.SpecError, match="field 'name'"):
         batch.load_spec(p)
+    # a parameter no notebook of the spec takes would be dropped silently: refused
+    p.write_text('name = "x"\nnotebooks = ["01_derivation"]\n[grid]\nseed = [1, 2]\n')
+    with pytest.raises(batch.SpecError, match=r"grid\.seed is not a parameter of 01_derivation"):
+        batch.load_spec(p)
+    p.write_text('name = "x"\nnotebooks = ["04_pid_sweeps", "05_validation"]\n[grid]\npayload_mass = [0.0]\n')
+    assert batch.load_spec(p)["grid"] == {"payload_mass": [0.0]}

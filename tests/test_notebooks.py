@@ -74,14 +74,6 @@ def test_bad_parameter_stops_notebook_early(tmp_path):
     assert "parameter 'grid_n' must be int" in str(err.value)
 
 
-@pytest.fixture(scope="module")
-def processed(tmp_path_factory):
-    """Notebook 02 run once: its metrics and the identified leg the later notebooks read."""
-    out = tmp_path_factory.mktemp("nb02")
-    m = _run(NOTEBOOKS[1], out, raw_dir=str(out / "raw"), processed_dir=str(out / "processed"))
-    return out, m
-
-
 @pytest.mark.notebook
 def test_02_friction_fitting(processed):
     tmp_path, m = processed

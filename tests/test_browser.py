@@ -1,0 +1,315 @@
+"""Notebooks 03 and 04 as a person uses them: JupyterLab in headless Chromium, Run All, one
+slider moved with the keyboard; the readout must show exactly what leglib computes for the
+new slider value, and the plot must be redrawn. Screenshots go to reports/browser/.
+
+Needs Debian's chromium (``make test`` installs it as root). Outside CI the test skips when
+it is missing; with CI=true it fails instead."""
+
+from __future__ import annotations
+
+import inspect
+import json
+import os
+import secrets
+import shutil
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+from leglib.notebooks import REPO, notebook_paths
+
+pytestmark = pytest.mark.browser
+
+CHROMIUM_FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                  "--disable-component-update", "--disable-sync", "--no-first-run"]
+SCREENSHOTS = REPO / "reports" / "browser"
+RUN_TIMEOUT_S = 300
+
+
+CHROMIUM = Path("/usr/bin/chromium")  # Debian's package
+
+
+def _chromium() -> str:
+    path = shutil.which("chromium") or (str(CHROMIUM) if CHROMIUM.exists() else None)
+    if path is None:
+        msg = (f"no Chromium found (looked for `chromium` on PATH and {CHROMIUM}); "
+               "install it with `apt-get install chromium` (make test does this when run as root)")
+        if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
+            pytest.fail(msg + " -- CI must run the browser test")
+        pytest.skip(msg)
+    return path
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _notebook(prefix: str) -> Path:
+    return next(p for p in notebook_paths() if p.name.startswith(prefix))
+
+
+def _defaults(path: Path) -> dict:
+    import papermill as pm
+    import ast
+    return {k: ast.literal_eval(v["default"]) for k, v in pm.inspect_notebook(str(path)).items()}
+
+
+@pytest.mark.parametrize("ci, outcome", [("", pytest.skip.Exception), ("true", pytest.fail.Exception)])
+def test_missing_chromium_skips_outside_ci_and_fails_in_ci(monkeypatch, tmp_path, ci, outcome):
+    monkeypatch.setattr(sys.modules[__name__], "CHROMIUM", tmp_path / "chromium")
+    monkeypatch.setattr(shutil, "which", lambda name: None)
+    monkeypatch.setenv("CI", ci)
+    with pytest.raises(outcome, match="no Chromium found"):
+        _chromium()
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory, processed):
+    """A JupyterLab server on 127.0.0.1 with a token, serving notebooks 03 and 04 prepared
+    (not run) with papermill: smoke mode and every output under a temporary directory."""
+    import papermill as pm
+
+    chromium = _chromium()
+    for old in SCREENSHOTS.glob("*.png"):  # screenshots of an earlier run, not of this one
+        old.unlink()
+    root = tmp_path_factory.mktemp("lab")
+    out = root / "out"
+    prepared = {
+        "03": {"smoke": True, "identified_path": str(processed[0] / "processed" / "friction_identified.json")},
+        "04": {"smoke": True, "sweep_dir": str(out / "sweep04")},
+    }
+    metrics = {}
+    for prefix, params in prepared.items():
+        nb = _notebook(prefix)
+        metrics[prefix] = out / "metrics" / f"{nb.stem}.json"
+        params.update(figures_dir=str(out / "figures"), metrics_path=str(metrics[prefix]))
+        pm.execute_notebook(str(nb), str(root / nb.name), parameters=params, prepare_only=True,
+                            progress_bar=False)
+    token = secrets.token_hex(16)
+    port = _free_port()
+    env = {k: v for k, v in os.environ.items() if k != "MPLBACKEND"}  # the kernel draws inline
+    for var, sub in (("JUPYTER_RUNTIME_DIR", "runtime"), ("JUPYTERLAB_WORKSPACES_DIR", "workspaces"),
+                     ("JUPYTERLAB_SETTINGS_DIR", "settings"), ("JUPYTER_CONFIG_DIR", "config")):
+        env[var] = str(root / ".jupyter" / sub)
+    # no news feed or update check: nothing to fetch offline, no toast over the notebook
+    settings = root / ".jupyter" / "settings" / "@jupyterlab" / "apputils-extension"
+    settings.mkdir(parents=True)
+    (settings / "notification.jupyterlab-settings").write_text(
+        json.dumps({"fetchNews": "false", "checkForUpdates": False}))
+    log = open(root / "jupyterlab.log", "w")
+    server = subprocess.Popen(
+        [sys.executable, "-m", "jupyterlab", "--no-browser", "--ip=127.0.0.1", f"--port={port}",
+         f"--IdentityProvider.token={token}", f"--ServerApp.root_dir={root}",
+         "--ServerApp.port_retries=0"] + (["--allow-root"] if os.geteuid() == 0 else []),
+        env=env, stdout=log, stderr=subprocess.STDOUT, cwd=root)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 90
+        while True:
+            if server.poll() is not None:
+                raise RuntimeError(f"JupyterLab exited ({server.returncode}): "
+                                   f"{(root / 'jupyterlab.log').read_text()[-2000:]}")
+            try:
+                with urllib.request.urlopen(f"{base}/api/status?token={token}", timeout=2) as r:
+                    if r.status == 200:
+                        break
+            except OSError:
+                pass
+            if time.monotonic() > deadline:
+                raise RuntimeError("JupyterLab did not answer within 90 s: "
+                                   f"{(root / 'jupyterlab.log').read_text()[-2000:]}")
+            time.sleep(0.5)
+        yield {"base": base, "token": token, "root": root, "metrics": metrics, "chromium": chromium,
+               "params": prepared}
+    finally:
+        server.terminate()
+        try:
+            server.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            server.kill()
+        log.close()
+
+
+@pytest.fixture(scope="module")
+def browser(lab):
+    from playwright.sync_api import sync_playwright
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=lab["chromium"], headless=True, args=CHROMIUM_FLAGS)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+def _screenshot(page, name: str, element=None) -> Path:
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    path = SCREENSHOTS / f"{name}.png"
+    (element or page).screenshot(path=str(path))
+    return path
+
+
+def _errors(page) -> str:
+    """The text of error outputs on the page (tracebacks), for a failure message."""
+    texts = page.locator(".jp-OutputArea-output[data-mime-type='application/vnd.jupyter.stderr']").all_inner_texts()
+    return "\n".join(t for t in texts if "Error" in t or "Traceback" in t)[-3000:]
+
+
+def _api(lab, path: str):
+    with urllib.request.urlopen(f"{lab['base']}/api/{path}?token={lab['token']}", timeout=10) as r:
+        return json.loads(r.read())
+
+
+def _wait_kernel_ready(lab, name: str, timeout: float = 120.0):
+    """Until the notebook's kernel is started, idle, and connected to the page: before that
+    Run All would find no kernel to run the cells on."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for session in _api(lab, "sessions"):
+            k = session.get("kernel") or {}
+            if session.get("path") == name and k.get("execution_state") == "idle" and k.get("connections", 0) > 0:
+                return
+        time.sleep(0.5)
+    pytest.fail(f"{name}: no idle kernel connected to the page within {timeout:.0f} s")
+
+
+def _run_all(page, lab, prefix: str) -> dict:
+    """Open a prepared notebook, Run All from the Run menu, wait until its last cell wrote the
+    metrics JSON and the kernel is idle. Returns the metrics."""
+    nb = _notebook(prefix)
+    # ?reset: a fresh workspace, so this notebook is the only one open
+    page.goto(f"{lab['base']}/lab/tree/{nb.name}?reset&token={lab['token']}")
+    notebook = page.locator(".jp-NotebookPanel:not(.lm-mod-hidden)")
+    idle = notebook.locator(".jp-Notebook-ExecutionIndicator[data-status='idle']")
+    idle.wait_for(timeout=120_000)
+    _wait_kernel_ready(lab, nb.name)
+    page.locator(".jp-StatusBar-Item", has_text="| Idle").first.wait_for(timeout=60_000)
+    prompts = notebook.locator(".jp-InputPrompt")
+    page.locator(".lm-MenuBar-item", has_text="Run").first.click()
+    page.locator(".lm-Menu-item[data-command='runmenu:run-all']").click()
+    metrics_path = lab["metrics"][prefix]
+    try:
+        notebook.locator(".jp-InputPrompt", has_text="*").first.wait_for(timeout=30_000)
+    except Exception:
+        if not metrics_path.exists():
+            _screenshot(page, f"{nb.stem}_not_started")
+            pytest.fail(f"{nb.name}: Run All queued no cell within 30 s")
+    deadline = time.monotonic() + RUN_TIMEOUT_S
+    quiet = 0
+    while not metrics_path.exists():
+        page.wait_for_timeout(500)
+        busy = prompts.filter(has_text="*").count()
+        quiet = quiet + 1 if busy == 0 and idle.count() else 0
+        if quiet >= 6:  # 3 s idle with nothing queued and no metrics: a cell failed
+            _screenshot(page, f"{nb.stem}_failed")
+            pytest.fail(f"{nb.name} stopped before its last cell:\n{_errors(page)}")
+        if time.monotonic() > deadline:
+            _screenshot(page, f"{nb.stem}_timeout")
+            pytest.fail(f"{nb.name} did not finish within {RUN_TIMEOUT_S} s:\n{_errors(page)}")
+    idle.wait_for(timeout=60_000)
+    return json.loads(metrics_path.read_text())
+
+
+def _move_slider(page, panel, label: str, expected_value: str, expected_readout: str, name: str):
+    """Focus the slider called ``label`` in ``panel``, press ArrowRight once, and wait for the
+    slider to show ``expected_value``, the readout to show ``expected_readout`` exactly and
+    the plot to be redrawn. Screenshots before and after."""
+    from playwright.sync_api import expect
+
+    slider = panel.locator(".widget-slider", has=page.locator(".widget-label", has_text=label)).first
+    plot = panel.locator(".widget-output .jp-OutputArea-output img").first
+    expect(plot).to_be_visible(timeout=60_000)
+    before = plot.get_attribute("src")
+    _screenshot(page, f"{name}_before", panel)
+    slider.locator(".noUi-handle").first.focus()
+    page.keyboard.press("ArrowRight")
+    # the slider formats with d3-format, which writes a minus as U+2212
+    expect(slider.locator(".widget-readout")).to_have_text(expected_value.replace("-", "\u2212"),
+                                                           timeout=30_000)
+    expect(panel.locator("code.leglib-readout")).to_have_text(expected_readout, timeout=120_000)
+    page.wait_for_function(
+        "([el, old]) => { const img = el.querySelector('.widget-output .jp-OutputArea-output img');"
+        " return img !== null && img.getAttribute('src') !== old; }",
+        arg=[panel.element_handle(), before], timeout=60_000)
+    after = plot.get_attribute("src")
+    _screenshot(page, f"{name}_after", panel)
+    return before, after
+
+
+def _panel(page):
+    """The ipywidgets panel: the output area holding leglib's readout."""
+    panel = page.locator(".jp-OutputArea-output", has=page.locator("code.leglib-readout")).last
+    panel.wait_for(timeout=60_000)
+    panel.scroll_into_view_if_needed()
+    return panel
+
+
+def _slider_session(browser, lab, prefix: str, label: str, value_text: str, initial: str, moved: str) -> dict:
+    """Run All in notebook ``prefix``; check the panel's readout shows ``initial``; move the
+    slider ``label`` one step to ``value_text``; the readout must become ``moved`` and the
+    plot must be redrawn. Returns the notebook's metrics."""
+    from playwright.sync_api import expect
+
+    nb = _notebook(prefix)
+    page = browser.new_page(viewport={"width": 1500, "height": 1000})
+    try:
+        metrics = _run_all(page, lab, prefix)
+        panel = _panel(page)
+        expect(panel.locator("code.leglib-readout")).to_have_text(initial, timeout=30_000)
+        before, after = _move_slider(page, panel, label, value_text, moved, f"{prefix}_{label.replace(' ', '_')}")
+        assert before != after and after.startswith("data:image/png")
+        _screenshot(page, f"{nb.stem}_page")
+    finally:
+        page.close()
+    return metrics
+
+
+def _panel_defaults(panel_function) -> dict:
+    return {k: p.default for k, p in inspect.signature(panel_function).parameters.items()
+            if p.default is not inspect.Parameter.empty}
+
+
+def test_pole_slider_in_notebook_03(lab, browser):
+    from leglib import model as M, statefeedback as SF, widgets
+    from leglib.params import load_leg
+
+    defaults = _defaults(_notebook("03"))
+    sys_thesis = M.linearize(load_leg(defaults["leg_name"]))
+    # the notebook's panel: centre from its first pole, its observer factor, the panel's spread
+    center = float(SF.parse_poles(defaults["poles"])[0].real)
+    spread = _panel_defaults(widgets.pole_placement_panel)["spread"]
+    factor = defaults["observer_factor"]
+    initial = widgets.design_readout(widgets.pole_panel_design(sys_thesis, center, spread, factor))
+    moved = widgets.design_readout(widgets.pole_panel_design(sys_thesis, center + 0.5, spread, factor))
+    assert initial != moved
+
+    metrics = _slider_session(browser, lab, "03", "pole centre", f"{center + 0.5:.1f}", initial, moved)
+    assert metrics["eig_K_max_rel_error"] < 1e-6  # the notebook computed sensible things
+
+
+def test_gain_slider_in_notebook_04(lab, browser):
+    from leglib import odrive_io as io, widgets
+    from leglib.nbtools import device_options
+    from leglib.params import load_leg
+
+    # the panel's device: connected, configured and calibrated as in the notebook; one step
+    # with the panel's initial gains, then one with pos_gain one slider step up
+    d = _defaults(_notebook("04"))
+    gains = _panel_defaults(widgets.gain_step_panel)
+    gains.pop("gm")
+    options = device_options("virtual", d["seed"], d["plant"], d["payload_mass"])
+    with io.connect("virtual", leg=load_leg(d["leg_name"]), **options) as dev:
+        io.apply_configuration(dev)
+        io.calibrate(dev)
+        initial = widgets.step_readout(io.step_response(dev, **gains))
+        moved = widgets.step_readout(io.step_response(dev, **{**gains, "pos_gain": gains["pos_gain"] + 1.0}))
+    assert initial.startswith("zeta = ") and moved.startswith("zeta = ") and initial != moved
+
+    metrics = _slider_session(browser, lab, "04", "pos_gain", f"{gains['pos_gain'] + 1.0:.0f}", initial, moved)
+    assert metrics["points"] == 32
