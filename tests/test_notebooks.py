@@ -67,11 +67,22 @@ def test_01_derivation(tmp_path):
 
 
 @pytest.mark.notebook
-def test_bad_parameter_stops_notebook_early(tmp_path):
+@pytest.mark.parametrize("index, params, message", [
+    (0, {"grid_n": "many"}, "parameter 'grid_n' must be int"),                      # wrong type
+    (2, {"step_deg": 90.0}, "parameter 'step_deg' must be <= 40.0"),                 # out of range
+    (3, {"backend": "serial"}, "parameter 'backend' must be one of ('virtual', 'usb')"),  # unknown backend
+], ids=["type", "range", "backend"])
+def test_bad_parameter_stops_notebook_early(tmp_path, index, params, message):
     import papermill as pm
     with pytest.raises(pm.PapermillExecutionError) as err:
-        execute(NOTEBOOKS[0], tmp_path, {"smoke": True, "grid_n": "many"}, html=False)
-    assert "parameter 'grid_n' must be int" in str(err.value)
+        execute(NOTEBOOKS[index], tmp_path, {"smoke": True, **params}, html=False)
+    assert message in str(err.value)
+    # stopped in its first code cells: the parameters, the injected ones, the checks
+    nb = nbformat.read(str(tmp_path / NOTEBOOKS[index].name), as_version=4)
+    code = [c for c in nb.cells if c.cell_type == "code"]
+    failed = [i for i, c in enumerate(code) if any(o.get("output_type") == "error" for o in c.outputs)]
+    assert failed and failed[0] <= 2, failed
+    assert all(c.execution_count is None for c in code[failed[0] + 1:])
 
 
 @pytest.mark.notebook
