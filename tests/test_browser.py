@@ -7,6 +7,7 @@ it is missing; with CI=true it fails instead."""
 
 from __future__ import annotations
 
+import ast
 import inspect
 import json
 import os
@@ -57,7 +58,6 @@ def _notebook(prefix: str) -> Path:
 
 def _defaults(path: Path) -> dict:
     import papermill as pm
-    import ast
     return {k: ast.literal_eval(v["default"]) for k, v in pm.inspect_notebook(str(path)).items()}
 
 
@@ -126,8 +126,7 @@ def lab(tmp_path_factory, processed):
                 raise RuntimeError("JupyterLab did not answer within 90 s: "
                                    f"{(root / 'jupyterlab.log').read_text()[-2000:]}")
             time.sleep(0.5)
-        yield {"base": base, "token": token, "root": root, "metrics": metrics, "chromium": chromium,
-               "params": prepared}
+        yield {"base": base, "token": token, "root": root, "metrics": metrics, "chromium": chromium}
     finally:
         server.terminate()
         try:
