@@ -20,14 +20,17 @@ def main(argv: list[str] | None = None) -> int:
     batch.add_argument("--workers", type=int, default=2, help="local processes (without --scheduler)")
     args = parser.parse_args(argv)
     if args.command == "batch":
-        from .batch import run_batch
-        results = run_batch(args.spec, args.out, scheduler=args.scheduler, workers=args.workers)
+        from .batch import SpecError, batch_root, load_spec, run_batch
+        try:
+            spec = load_spec(args.spec)
+        except SpecError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        results = run_batch(spec, args.out, scheduler=args.scheduler, workers=args.workers)
         failed = {k: v for k, v in results.items() if v.get("status") != "done"}
         for k, v in failed.items():
             print(f"FAILED {k}: {v.get('notebook')} cell {v.get('cell')}: {v.get('error')}")
-        from pathlib import Path
-        from .batch import load_spec
-        index = Path(args.out).resolve() / load_spec(args.spec)["name"] / "index.html"
+        index = batch_root(args.out, spec) / "index.html"
         print(f"{len(results) - len(failed)} runs done, {len(failed)} failed; index: {index}")
         return 1 if failed else 0
     if args.command == "run":

@@ -110,9 +110,15 @@ def run_one(notebooks: list[str], params: dict, out_dir: str) -> dict:
     return status
 
 
-def run_batch(spec_path: str | Path, out_root: str | Path = "reports/batch", scheduler: str | None = None,
+def batch_root(out_root: str | Path, spec: dict) -> Path:
+    """The directory of a batch's runs and index (absolute: Dask workers run elsewhere)."""
+    return Path(out_root).resolve() / spec["name"]
+
+
+def run_batch(spec: str | Path | dict, out_root: str | Path = "reports/batch", scheduler: str | None = None,
               workers: int = 2, progress: bool = True, cluster=None) -> dict:
-    """Run every grid point of the spec; skip runs already done; write the index.
+    """Run every grid point of the spec (a path, or a spec from :func:`load_spec`); skip
+    runs already done; write the index (``batch_root(out_root, spec) / "index.html"``).
 
     ``scheduler``: a Dask scheduler address (``tcp://host:8786``); ``cluster``: a Dask
     cluster object (tests use a LocalCluster); otherwise local processes (``workers``).
@@ -120,8 +126,8 @@ def run_batch(spec_path: str | Path, out_root: str | Path = "reports/batch", sch
     """
     from tqdm.auto import tqdm
 
-    spec = load_spec(spec_path)
-    root = Path(out_root).resolve() / spec["name"]  # absolute: Dask workers run elsewhere
+    spec = spec if isinstance(spec, dict) else load_spec(spec)
+    root = batch_root(out_root, spec)
     root.mkdir(parents=True, exist_ok=True)
     runs = runs_of(spec)
     results, pending = {}, []

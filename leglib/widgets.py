@@ -67,10 +67,12 @@ def pole_placement_panel(sys, center: float = -7.0, spread: float = 0.007, obser
     return W.VBox([W.HBox([s_center, s_spread, s_obs]), readout, out])
 
 
-def step_readout(resp) -> str:
-    """The text the gain panel shows for one step response (also used by tests)."""
+def step_readout(resp, identified=None) -> str:
+    """The text the gain panel shows for one step response (also used by tests);
+    ``identified``: the response's :func:`leglib.gainmap.identify_response`, when the
+    caller already has it."""
     from .gainmap import identify_response
-    p = identify_response(resp)
+    p = identify_response(resp) if identified is None else identified
     if p.status != "ok":
         return f"{p.status}: {p.reason}"
     return f"zeta = {p.zeta:.3f}, fn = {p.fn:.2f} Hz"
@@ -100,7 +102,7 @@ def gain_step_panel(odrv, gm=None, pos_gain: float = 50.0, vel_gain: float = 0.0
     def redraw(*_):
         resp = io.step_response(odrv, s_pos.value, s_vel.value, s_int.value)
         p = identify_response(resp)
-        readout.value = f"<code class='leglib-readout'>{step_readout(resp)}</code>"
+        readout.value = f"<code class='leglib-readout'>{step_readout(resp, p)}</code>"
         with out:
             out.clear_output(wait=True)
             fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.8))

@@ -63,3 +63,13 @@ def test_bad_specs_are_named(tmp_path):
         batch.load_spec(p)
     p.write_text('name = "x"\nnotebooks = ["04_pid_sweeps", "05_validation"]\n[grid]\npayload_mass = [0.0]\n')
     assert batch.load_spec(p)["grid"] == {"payload_mass": [0.0]}
+
+
+def test_cli_reports_a_bad_spec_without_a_traceback(tmp_path, capsys):
+    from leglib.__main__ import main
+    p = tmp_path / "s.toml"
+    p.write_text('name = "x"\nnotebooks = ["01_derivation"]\n[parameters]\npayload = 1.0\n')
+    assert main(["batch", str(p), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "parameters.payload is not a parameter of 01_derivation" in err
+    assert not (tmp_path / "out").exists()  # nothing ran

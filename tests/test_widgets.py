@@ -22,9 +22,9 @@ def test_pole_panel_readout_follows_sliders(leg):
     assert readout.value == _readout_html(widgets.design_readout(widgets.pole_panel_design(sys, -7.0, 0.007, 6.0)))
     s_center.value = -12.5
     s_obs.value = 4.0
-    expected = widgets.design_readout(widgets.pole_panel_design(sys, -12.5, 0.007, 4.0))
-    assert readout.value == _readout_html(expected)
     d = widgets.pole_panel_design(sys, -12.5, 0.007, 4.0)
+    expected = widgets.design_readout(d)
+    assert readout.value == _readout_html(expected)
     # the readout's K is the gain that places the asked poles
     eig = np.sort(np.linalg.eigvals(sys.A - sys.B @ d.K).real)
     assert eig == pytest.approx(sorted([-12.5, -12.507, -12.514, -12.521]), rel=1e-6)
