@@ -1,17 +1,28 @@
 """Identification from measurements: second-order dynamics of step responses (thesis 6.4).
 
-:func:`second_order` fits a step response ``y(t)`` with two methods:
+:func:`second_order` reads a step response ``y(t)`` with three methods, in two measures:
 
-- ``"logdec"``: the thesis's method done properly: smoothing, peaks of the deviation from
-  the final value (scipy.signal.find_peaks), logarithmic decrement
-  zeta = delta / sqrt(4 pi^2 + delta^2), damped frequency fd = 1/(t2 - t1) [Hz]; then
-  wn = 2 pi fd / sqrt(1 - zeta^2). The thesis's "omega_n [Hz] = 1/(t2 - t1)" is fd.
 - ``"fit"`` (default): least squares of the second-order step response
   y = y0 + K (1 - h(t - delay; zeta, wn)) over (zeta, wn, K, y0, delay), started from the
-  log-decrement estimate; valid for any zeta, including >= 1.
+  corrected log-decrement estimate; valid for any zeta, including >= 1. This gives the true
+  (textbook) zeta, wn, fn = wn / 2 pi and fd = fn sqrt(1 - zeta^2).
+- ``"corrected_logdec"`` (alias ``"logdec"``): a corrected logarithmic decrement, *not* the
+  thesis's method: smoothing, peaks of the deviation from the final value
+  (scipy.signal.find_peaks), the decrement of peak-to-valley amplitudes one period apart,
+  zeta = delta / sqrt(4 pi^2 + delta^2), fd = 1/(t2 - t1) [Hz], wn = 2 pi fd / sqrt(1 - zeta^2).
+  Same measure as ``"fit"``.
+- ``"thesis"``: Listing 7.7 ("identifyParams") exactly, returning a :class:`ThesisReading`:
+  MATLAB ``smooth`` (5-point moving average with shrinking end spans) of -y, ``findpeaks``,
+  delta = -ln(pks(1)/pks(2)) from the raw peak values (not from the final value),
+  zeta = delta / sqrt(4 pi^2 + delta^2), and the listing's "omega_n [Hz]" = 1/(t2 - t1),
+  which is a damped frequency (``.fd``). One peak gives zeta = 1, none zeta = 2, as the
+  listing does, flagged. This is the measure of the thesis's Fig. 6.12, its target
+  (zeta 0.24, 5 Hz) and its validation result (0.229, 5.06 Hz); it is strongly biased
+  against the true zeta (see :mod:`leglib.thesis`). Apply it to the listing's own signal,
+  :func:`leglib.model.thesis_listing_height` of the zeroed angles in degrees.
 
-No invented numbers: a response with fewer than two peaks is reported with the fit's zeta
-(which may be >= 1) and ``overdamped=True``; an unusable response raises
+No invented numbers in the true measure: a response with fewer than two peaks is reported
+with the fit's zeta (which may be >= 1) and ``overdamped=True``; an unusable response raises
 :class:`IdentificationError`.
 """
 
@@ -116,8 +127,9 @@ def _smooth(y):
 
 
 def _logdec(t, y, y0, yf, step):
-    """Thesis method, corrected: the decrement of peak-to-valley amplitudes one period
-    apart (independent of the final value, so an unsettled response is fine)."""
+    """Corrected logarithmic decrement (not the thesis's Listing 7.7): the decrement of
+    peak-to-valley amplitudes one period apart (independent of the final value, so an
+    unsettled response is fine)."""
     dev = (_smooth(y) - yf) / step          # overshoots are positive
     prom = max(0.005, 4 * float(np.std(np.diff(y))) / abs(step))
     peaks, _ = find_peaks(dev, prominence=prom)
@@ -145,33 +157,174 @@ def _r2(y, yhat):
     return 1.0 - float(np.sum((y - yhat) ** 2)) / ss if ss > 0 else float("nan")
 
 
-def second_order(t, y, method: str = "fit") -> SecondOrderFit:
-    """Identify (zeta, wn) of a step response.
+METHODS = ("fit", "corrected_logdec", "logdec", "thesis")
+
+
+@dataclass
+class ThesisReading:
+    """A step response read by the thesis's Listing 7.7 ("identifyParams").
+
+    All numbers are in the thesis's measure, not the true second-order parameters.
+
+    Attributes
+    ----------
+    zeta : float
+        Listing 7.7's damping [-]: delta / sqrt(4 pi^2 + delta^2) with
+        delta = -ln(pks(1)/pks(2)) from the raw peak values of smooth(-y); 1 for one peak,
+        2 for none (the listing's constants, see ``flagged``).
+    fd : float
+        1/(t2 - t1) [Hz] between the first two peaks: the listing's "omega_n [Hz]" (eq. 6.8),
+        a damped frequency. NaN with fewer than two peaks (the listing returns 0 there, see
+        ``listing_output``).
+    delta : float
+        The decrement -ln(pks(1)/pks(2)) [-]; NaN with fewer than two peaks.
+    peak_times : (P,) ndarray
+        Times [s] of every peak ``findpeaks`` finds in smooth(-y) (``locs``).
+    peak_values : (P,) ndarray
+        The peaks' values of smooth(-y) (``pks``), in the unit of y.
+    smoothed : (N,) ndarray
+        smooth(-y), the signal the peaks are taken from.
+    method : str
+        "thesis".
+    """
+
+    zeta: float
+    fd: float
+    delta: float
+    peak_times: np.ndarray
+    peak_values: np.ndarray
+    smoothed: np.ndarray
+    method: str = "thesis"
+
+    @property
+    def n_peaks(self) -> int:
+        return int(self.peak_times.size)
+
+    @property
+    def flagged(self) -> bool:
+        """True when zeta is the listing's constant (1 for one peak, 2 for none)."""
+        return self.n_peaks < 2
+
+    overdamped = flagged
+
+    @property
+    def listing_output(self) -> tuple[float, float]:
+        """``[wn, xi]`` exactly as Listing 7.7 returns them (wn = 0 with fewer than two peaks)."""
+        return (self.fd if self.n_peaks >= 2 else 0.0, self.zeta)
+
+
+def matlab_smooth(y, span: int = 5) -> np.ndarray:
+    """MATLAB's ``smooth(y)``: a moving average of ``span`` points (odd), whose span shrinks
+    symmetrically near the ends (yy(1) = y(1), yy(2) = mean(y(1:3)), ...).
+
+    Parameters
+    ----------
+    y : (N,) array_like
+    span : int, odd, default 5 (MATLAB's default)
+
+    Returns
+    -------
+    (N,) ndarray, in the unit of y
+    """
+    y = np.asarray(y, dtype=float)
+    if span < 1 or span % 2 == 0:
+        raise ValueError(f"span must be a positive odd integer, got {span}")
+    n = y.size
+    h = span // 2
+    out = np.empty(n)
+    # window sums added left to right, sample by sample (no running sums), so equal windows
+    # of quantized data give exactly equal averages and findpeaks sees the same plateaus
+    if n > 2 * h:
+        acc = np.zeros(n - 2 * h)
+        for j in range(span):
+            acc = acc + y[j:n - 2 * h + j]
+        out[h:n - h] = acc / span
+    for k in list(range(min(h, n))) + list(range(max(n - h, 0), n)):
+        w = min(k, n - 1 - k, h)
+        out[k] = sum(y[k - w:k + w + 1].tolist()) / (2 * w + 1)
+    return out
+
+
+def matlab_findpeaks(x) -> np.ndarray:
+    """Indices of MATLAB ``findpeaks(x)``'s peaks with its default options: samples larger
+    than both neighbours, a flat peak reported at its first sample, never an end point."""
+    x = np.asarray(x, dtype=float)
+    if x.size < 3:
+        return np.zeros(0, dtype=int)
+    # collapse runs of equal values to their first sample, as findpeaks does
+    keep = np.concatenate([[True], x[1:] != x[:-1]])
+    idx = np.nonzero(keep)[0]
+    s = np.sign(np.diff(x[idx]))
+    # a rise followed by a fall; the run's first sample must not be an end point
+    peak = np.nonzero((s[:-1] > 0) & (s[1:] < 0))[0] + 1
+    return idx[peak]
+
+
+def _thesis_reading(t, y) -> ThesisReading:
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if t.ndim != 1 or y.shape != t.shape:
+        raise IdentificationError(f"t and y must be 1-D arrays of equal length, got {t.shape} and {y.shape}")
+    if t.size < 3:
+        raise IdentificationError(f"response too short: {t.size} samples (need at least 3)")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(y))):
+        raise IdentificationError("response contains NaN or infinite values")
+    if np.any(np.diff(t) <= 0):
+        raise IdentificationError("time must increase strictly")
+    inv = matlab_smooth(-y)
+    i = matlab_findpeaks(inv)
+    pks, locs = inv[i], t[i]
+    if pks.size == 0:
+        zeta, fd, delta = 2.0, float("nan"), float("nan")
+    elif pks.size == 1:
+        zeta, fd, delta = 1.0, float("nan"), float("nan")
+    else:
+        ratio = pks[0] / pks[1]
+        if not ratio > 0:
+            raise IdentificationError(f"Listing 7.7 cannot read this response: its first two peaks "
+                                      f"({pks[0]:.4g}, {pks[1]:.4g}) differ in sign, so ln(pks(1)/pks(2)) "
+                                      "is not real (the listing expects y of one sign)")
+        delta = -math.log(ratio)
+        zeta = delta / math.sqrt((2 * math.pi) ** 2 + delta ** 2)
+        fd = 1.0 / (locs[1] - locs[0])
+    return ThesisReading(float(zeta), float(fd), float(delta), locs, pks, inv)
+
+
+def second_order(t, y, method: str = "fit"):
+    """Identify the second-order dynamics of a step response.
 
     Parameters
     ----------
     t : (N,) time [s], strictly increasing; the step is applied at or after t[0]
-    y : (N,) response (any unit, e.g. foot height [m])
-    method : "fit" (least squares, default) or "logdec" (the thesis's method)
+    y : (N,) response (any unit, e.g. foot height [m]; for ``"thesis"`` the listing's
+        signal, :func:`leglib.model.thesis_listing_height`)
+    method : {"fit", "corrected_logdec", "logdec", "thesis"}
+        "fit" (least squares, default) and "corrected_logdec" (a corrected logarithmic
+        decrement; "logdec" is the same) give the true zeta, wn; "thesis" is Listing 7.7
+        exactly, in the thesis's measure.
 
     Returns
     -------
-    SecondOrderFit (.zeta, .wn [rad/s], .fn [Hz], .fd [Hz], .r2, .n_peaks, .overdamped)
+    SecondOrderFit (.zeta, .wn [rad/s], .fn [Hz], .fd [Hz], .r2, .n_peaks, .overdamped) for
+    "fit" and "corrected_logdec"; :class:`ThesisReading` (.zeta, .fd [Hz] = 1/(t2 - t1),
+    .peak_times, .peak_values, .flagged) for "thesis".
     """
-    if method not in ("fit", "logdec"):
-        raise ValueError(f"method must be 'fit' or 'logdec', got {method!r}")
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(map(repr, METHODS))}, got {method!r}")
+    if method == "thesis":
+        return _thesis_reading(t, y)
     t, y, y0, yf, step = _validate(t, y)
     t = t - t[0]
     est, n_peaks = _logdec(t, y, y0, yf, step)
-    if method == "logdec":
+    if method in ("corrected_logdec", "logdec"):
         if est is None:
             # no oscillation to measure: report the fit's zeta, flagged, never a constant
             fit = second_order(t, y, method="fit")
-            fit.method = "logdec->fit"
+            fit.method = "corrected_logdec->fit"
             return fit
         zeta, wn = est
         yhat = _model(t, zeta, wn, step, y0, 0.0)
-        return SecondOrderFit(zeta, wn, step, y0, 0.0, "logdec", _r2(y, yhat), n_peaks, False)
+        return SecondOrderFit(zeta, wn, step, y0, 0.0, "corrected_logdec", _r2(y, yhat), n_peaks, False)
     starts = []
     if est is not None:
         starts.append(est)

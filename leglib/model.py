@@ -310,6 +310,37 @@ def thesis_foot_height(leg: LegParams, q1, q2):
     return leg.l1 * np.sin(q1) + leg.l2 * np.sin(q2)
 
 
+LISTING_LENGTH = 0.16  # m, the constant of Listing 7.7, line 29
+
+
+def thesis_listing_height(q1_deg, q2_deg, length: float = LISTING_LENGTH):
+    """The signal Listing 7.7 identifies: y = 0.16 cos(angle1) + 0.16 cos(angle2) [m].
+
+    Unlike eq. 6.5 (l sin q of absolute angles), the listing takes the cosine of the angles
+    *zeroed at the start of the step* (Listing 7.4 subtracts the first sample), in degrees.
+    At rest y = 0.32 m; a step of +-48 deg on the two joints lowers it to 0.32 cos 48 deg.
+
+    Parameters
+    ----------
+    q1_deg, q2_deg : array_like
+        Joint-angle changes from the first sample [deg] (the thesis's CSV columns).
+    length : float
+        The listing's 0.16 [m].
+
+    Returns
+    -------
+    ndarray, the listing's y [m]
+    """
+    return (length * np.cos(np.radians(np.asarray(q1_deg, dtype=float)))
+            + length * np.cos(np.radians(np.asarray(q2_deg, dtype=float))))
+
+
+def zeroed_degrees(q):
+    """Joint angles [rad] as Listing 7.4 records them: change from the first sample [deg]."""
+    q = np.asarray(q, dtype=float)
+    return np.degrees(q - q[..., :1])
+
+
 def leg_length(leg: LegParams, q1, q2):
     """Hip-to-foot distance [m] (Doggo's L = L1 cos(gamma) + sqrt(L2^2 - L1^2 sin^2(gamma)))."""
     x, y = foot_position(leg, q1, q2)

@@ -41,7 +41,7 @@ def test_fit_with_quantization_and_noise_within_3_percent(zeta, wn):
 @pytest.mark.parametrize("zeta,wn", [(0.1, 31.4), (0.24, 31.4), (0.2, 60.0), (0.15, 12.0)])
 def test_thesis_log_decrement_where_two_periods_exist(zeta, wn):
     f = second_order(T, _quantized_noisy(zeta, wn, seed=3), method="logdec")
-    assert f.method == "logdec" and f.n_peaks >= 2
+    assert f.method == "corrected_logdec" and f.n_peaks >= 2
     assert f.zeta == pytest.approx(zeta, rel=0.05)
     assert f.wn == pytest.approx(wn, rel=0.03)
     assert f.fd == pytest.approx(wn * math.sqrt(1 - zeta ** 2) / (2 * math.pi), rel=0.03)

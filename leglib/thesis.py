@@ -1,0 +1,433 @@
+"""The thesis's own numbers, read the way the thesis computed them, and its errata checked.
+
+Two measures of a step response appear in this project; every number says which it is in:
+
+- **the thesis's reading** (Listing 7.7, ``identify.second_order(..., method="thesis")``):
+  zeta from delta = -ln(pks(1)/pks(2)) of the raw peak values of smooth(-y), with
+  y = 0.16 cos(angle1) + 0.16 cos(angle2) of the zeroed angles in degrees, and
+  "omega_n [Hz]" = 1/(t2 - t1), which is the damped frequency fd. The thesis's Fig. 6.12,
+  its target (zeta 0.24, 5 Hz), Listing 7.8's ``desiredPoint = [0.23, 5]`` and its
+  validation result (0.229, 5.06 Hz) are all in this measure.
+- **the true second-order parameters** (``identify.second_order``'s least-squares fit):
+  zeta, wn [rad/s], fn = wn / 2 pi [Hz], fd = fn sqrt(1 - zeta^2) [Hz].
+
+This module holds the thesis's published constants (Table 6.1, Listings 7.1, 7.4, 7.8,
+eq. 5.11), the conversions between the two measures, and the errata computations that
+notebooks 01, 04 and 05 show.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import brentq
+
+from . import model as M
+from .identify import IdentificationError, ThesisReading, _unit_step, second_order
+from .params import LegParams
+
+# ---------------------------------------------------------------------------------------
+# the thesis's targets and results, in the thesis's measure (Listing 7.7)
+# ---------------------------------------------------------------------------------------
+
+#: Thesis 6.5: "zeta = 0.24 and omega_n = 5" -- Listing 7.7's zeta and 1/(t2 - t1) [Hz].
+TEXT_TARGET = (0.24, 5.0)
+#: Listing 7.8, line 57: ``desiredPoint = [0.23, 5]`` (the text says 0.24).
+LISTING_7_8_TARGET = (0.23, 5.0)
+#: Thesis 6.5: the validated response, "zeta = 0.229, omega_n = 5.06", in Listing 7.7's measure.
+THESIS_RESULT = (0.229, 5.06)
+#: Fig. 6.9's gains (pos_gain, vel_gain, vel_integrator_gain), thesis 6.4.
+FIG_6_9_GAINS = (50.0, 0.046, 0.001)
+#: Listing 7.4's step: 0.4 motor turns through the 1:3 belt = 48 deg on each joint.
+STEP_DEG = 0.4 * 360.0 / 3.0
+
+
+def listing_7_4_axes() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Listing 7.4's gain axes: pos_gain linspace(20, 50, 4), vel_gain linspace(0.002, 0.18, 10),
+    vel_integrator_gain linspace(0.002, 0.08, 10)."""
+    return np.linspace(20, 50, 4), np.linspace(0.002, 0.18, 10), np.linspace(0.002, 0.08, 10)
+
+
+def gains_on_listing_grid(gains, rel: float = 1e-6) -> dict:
+    """Whether each gain of ``gains`` lies on Listing 7.4's grid.
+
+    Returns
+    -------
+    dict with, per name ("pos_gain", "vel_gain", "vel_integrator_gain"): ``on_grid`` (bool),
+    ``nearest`` (the grid value nearest to it) and ``inside`` (within the axis's range).
+    """
+    out = {}
+    for name, g, axis in zip(("pos_gain", "vel_gain", "vel_integrator_gain"), gains, listing_7_4_axes()):
+        k = int(np.argmin(np.abs(axis - g)))
+        out[name] = {"value": float(g), "on_grid": bool(abs(axis[k] - g) <= rel * abs(axis[k])),
+                     "nearest": float(axis[k]), "inside": bool(axis[0] <= g <= axis[-1])}
+    return out
+
+
+# ---------------------------------------------------------------------------------------
+# Listing 7.7 on measured and on ideal responses
+# ---------------------------------------------------------------------------------------
+
+def listing_signal(q1, q2) -> np.ndarray:
+    """Listing 7.7's y [m] of absolute joint angles q1, q2 [rad] (zeroed at the first sample,
+    in degrees, as Listing 7.4 records them)."""
+    return M.thesis_listing_height(M.zeroed_degrees(q1), M.zeroed_degrees(q2))
+
+
+def read_step(resp) -> ThesisReading:
+    """Listing 7.7's reading of a :class:`leglib.odrive_io.StepResponse` (thesis measure)."""
+    return second_order(resp.t, listing_signal(resp.q1, resp.q2), method="thesis")
+
+
+def ideal_step(zeta: float, fd: float, step_deg: float = STEP_DEG, duration: float = 1.5,
+               dt: float = 0.002) -> tuple[np.ndarray, np.ndarray]:
+    """An ideal second-order step of both joints by +-``step_deg`` [deg] with true damping
+    ``zeta`` and damped frequency ``fd`` [Hz], as Listing 7.7 would see it.
+
+    Returns
+    -------
+    t : (N,) [s]; y : (N,) Listing 7.7's signal [m]
+    """
+    if not (0 < zeta < 1 and fd > 0):
+        raise ValueError(f"need 0 < zeta < 1 and fd > 0, got zeta={zeta}, fd={fd}")
+    t = np.arange(int(round(duration / dt))) * dt
+    wn = 2 * math.pi * fd / math.sqrt(1 - zeta ** 2)
+    a = step_deg * _unit_step(t, zeta, wn)
+    return t, M.thesis_listing_height(a, -a)
+
+
+def ideal_reading(zeta: float, fd: float, **kw) -> ThesisReading:
+    """Listing 7.7's reading of :func:`ideal_step` (true ``zeta``, ``fd`` [Hz])."""
+    return second_order(*ideal_step(zeta, fd, **kw), method="thesis")
+
+
+def bias_table(zetas=(0.05, 0.1, 0.15, 0.229, 0.3, 0.4, 0.5, 0.6, 0.7), fd: float = 5.0, **kw) -> list[dict]:
+    """Listing 7.7's zeta against the true zeta on ideal 48-degree steps.
+
+    Returns
+    -------
+    list of dict: ``true_zeta``, ``thesis_zeta``, ``thesis_f_hz`` (1/(t2 - t1)), ``true_fd``,
+    ``true_fn`` [Hz], ``n_peaks``
+    """
+    rows = []
+    for z in zetas:
+        r = ideal_reading(z, fd, **kw)
+        rows.append({"true_zeta": float(z), "thesis_zeta": r.zeta, "thesis_f_hz": r.fd, "true_fd": fd,
+                     "true_fn": fd / math.sqrt(1 - z ** 2), "n_peaks": r.n_peaks})
+    return rows
+
+
+def true_from_reading(thesis_zeta: float, thesis_f_hz: float, step_deg: float = STEP_DEG,
+                      bracket=(0.05, 0.7)) -> dict:
+    """The ideal second-order step whose Listing 7.7 reading is (``thesis_zeta``,
+    ``thesis_f_hz``): what a thesis-measure number means in true zeta, fd, fn.
+
+    Listing 7.7's zeta falls monotonically with the true zeta over ``bracket`` on ideal steps
+    of ``step_deg`` (checked here on the way); 1/(t2 - t1) is fd.
+
+    Returns
+    -------
+    dict: ``zeta`` (true), ``fd`` [Hz], ``fn`` [Hz], ``wn`` [rad/s]
+    """
+    fd = float(thesis_f_hz)
+
+    def gap(z):
+        # sampled as Listing 7.4 records (2 ms), over 1.5 s or long enough for two peaks
+        return ideal_reading(z, fd, step_deg=step_deg, duration=max(1.5, 3.0 / fd)).zeta - thesis_zeta
+
+    lo, hi = bracket
+    g_lo, g_hi = gap(lo), gap(hi)
+    if not g_lo > 0 > g_hi:
+        raise ValueError(f"Listing 7.7's zeta {thesis_zeta} is not reached by ideal steps with true zeta in "
+                         f"{bracket} (readings {g_lo + thesis_zeta:.3f} .. {g_hi + thesis_zeta:.3f})")
+    z = brentq(gap, lo, hi, xtol=1e-5)
+    fn = fd / math.sqrt(1 - z ** 2)
+    return {"zeta": float(z), "fd": fd, "fn": float(fn), "wn": float(2 * math.pi * fn)}
+
+
+def compare_readings(responses, leg=None) -> list[dict]:
+    """Both measures for every step response: Listing 7.7's reading and the true fit.
+
+    Parameters
+    ----------
+    responses : iterable of :class:`leglib.odrive_io.StepResponse`
+    leg : unused (the foot height ``resp.y`` is already exact)
+
+    Returns
+    -------
+    list of dict: ``gains``, ``status`` ("ok", "unstable", "failed"), ``thesis_zeta``,
+    ``thesis_f_hz`` (1/(t2 - t1)), ``thesis_flagged`` (fewer than two peaks: the listing's
+    constants), ``zeta``, ``fn``, ``fd`` (true, least squares on the foot height), ``reason``
+    """
+    out = []
+    nan = float("nan")
+    for r in responses:
+        row = {"gains": tuple(float(g) for g in r.gains), "status": "ok", "thesis_zeta": nan,
+               "thesis_f_hz": nan, "thesis_flagged": True, "zeta": nan, "fn": nan, "fd": nan, "reason": ""}
+        if not r.completed:
+            row.update(status="unstable", reason=r.abort_reason or "aborted")
+            out.append(row)
+            continue
+        try:
+            th = read_step(r)
+            row.update(thesis_zeta=th.zeta, thesis_f_hz=th.fd, thesis_flagged=th.flagged)
+            f = second_order(r.t, r.y)
+            row.update(zeta=f.zeta, fn=f.fn, fd=f.fd)
+        except IdentificationError as exc:
+            row.update(status="failed", reason=str(exc))
+        out.append(row)
+    return out
+
+
+def nearest_reading(rows: list[dict], zeta: float, f_hz: float) -> dict:
+    """The measured point whose Listing 7.7 reading is nearest to (``zeta``, ``f_hz``), in
+    distances relative to the request (as Listing 7.8's ``dsearchn``, on the measured points
+    rather than an interpolated map). Points with fewer than two peaks are skipped.
+
+    Returns
+    -------
+    the row of :func:`compare_readings`, with ``distance`` (relative, Euclidean) added
+    """
+    best, best_d = None, math.inf
+    for r in rows:
+        if r["status"] != "ok" or r["thesis_flagged"] or not np.isfinite(r["thesis_zeta"]):
+            continue
+        d = math.hypot(r["thesis_zeta"] / zeta - 1, r["thesis_f_hz"] / f_hz - 1)
+        if d < best_d:
+            best, best_d = r, d
+    if best is None:
+        raise ValueError("no point with two Listing 7.7 peaks to choose from")
+    return {**best, "distance": best_d}
+
+
+def bias_summary(rows: list[dict]) -> dict:
+    """Median and range of Listing 7.7's error against the true values over ``rows``
+    (from :func:`compare_readings`), on the points both measures identify."""
+    ok = [r for r in rows if r["status"] == "ok" and not r["thesis_flagged"] and np.isfinite(r["zeta"])
+          and np.isfinite(r["fd"])]
+    if not ok:
+        return {"points": 0}
+    tz = np.array([r["thesis_zeta"] for r in ok])
+    z = np.array([r["zeta"] for r in ok])
+    tf = np.array([r["thesis_f_hz"] for r in ok])
+    fd = np.array([r["fd"] for r in ok])
+    fn = np.array([r["fn"] for r in ok])
+    ez, efd, efn = tz / z - 1, tf / fd - 1, tf / fn - 1
+    q = lambda e: [float(np.min(e)), float(np.median(e)), float(np.max(e))]  # noqa: E731
+    return {"points": len(ok), "zeta_rel_error_min_median_max": q(ez),
+            "f_vs_fd_rel_error_min_median_max": q(efd), "f_vs_fn_rel_error_min_median_max": q(efn),
+            "flagged": int(sum(1 for r in rows if r["status"] == "ok" and r["thesis_flagged"]))}
+
+
+# ---------------------------------------------------------------------------------------
+# eqs. 6.1 / 6.3: the virtual leg's m, b, k
+# ---------------------------------------------------------------------------------------
+
+@dataclass
+class VirtualLeg:
+    """The spring-damper-mass of eq. 6.1 equivalent to a second-order response (eq. 6.3).
+
+    m [kg], b [N*s/m], k [N/m], k_dc = 1/k [m/N]; zeta [-], fn [Hz] the true parameters it
+    was built from.
+    """
+
+    m: float
+    b: float
+    k: float
+    zeta: float
+    fn: float
+
+    @property
+    def k_dc(self) -> float:
+        return 1.0 / self.k
+
+
+def step_end_pose(leg: LegParams, step_deg: float = STEP_DEG) -> tuple[float, float]:
+    """Joint angles [rad] at the end of Listing 7.4's step: the leg opened by ``step_deg``
+    on each joint from the operating point (q1 down, q2 up)."""
+    s = math.radians(step_deg)
+    return leg.q0[0] - s, leg.q0[1] + s
+
+
+def foot_mass(leg: LegParams, q=None, model: str = "fivebar", eps: float = 1e-6) -> float:
+    """The leg's effective mass [kg] at the foot along y (vertical), at rest at ``q``.
+
+    m_y = 1 / (J D^-1 J^T)_yy with D(q) the joint-space inertia (drive inertias included)
+    and J the foot's Jacobian: the mass a vertical force at the foot accelerates, which is
+    eq. 6.1's m for the virtual leg. ``q`` defaults to :func:`step_end_pose`, where a step
+    response oscillates (at the operating point, 6 deg from straight, the leg is nearly
+    singular vertically and m_y is tens of kg).
+    """
+    q1, q2 = step_end_pose(leg) if q is None else (float(q[0]), float(q[1]))
+    J = np.empty((2, 2))
+    for j, dq in enumerate(((eps, 0.0), (0.0, eps))):
+        p = np.array(M.foot_position(leg, q1 + dq[0], q2 + dq[1]))
+        m_ = np.array(M.foot_position(leg, q1 - dq[0], q2 - dq[1]))
+        J[:, j] = (p - m_) / (2 * eps)
+    D = M.mass_matrix(leg, q1, q2, model=model)
+    lam_inv = J @ np.linalg.solve(D, J.T)
+    return float(1.0 / lam_inv[1, 1])
+
+
+def virtual_leg(zeta: float, fn: float, mass: float) -> VirtualLeg:
+    """Eqs. 6.1/6.3: the m, b, k at the foot equivalent to a response with true damping
+    ``zeta`` [-] and natural frequency ``fn`` [Hz], for the foot's effective ``mass`` [kg].
+
+    From 1/(m s^2 + b s + k) = k_dc wn^2 / (s^2 + 2 zeta wn s + wn^2): k = m wn^2,
+    b = 2 zeta wn m, k_dc = 1/k, with wn = 2 pi fn. A thesis-measure target (Listing 7.7)
+    must first be converted with :func:`true_from_reading`.
+
+    Parameters
+    ----------
+    zeta : float, true damping ratio (> 0)
+    fn : float, true natural frequency [Hz] (> 0)
+    mass : float, effective mass at the foot [kg] (e.g. :func:`foot_mass`)
+
+    Returns
+    -------
+    VirtualLeg
+    """
+    for name, v in (("zeta", zeta), ("fn", fn), ("mass", mass)):
+        if not (np.isfinite(v) and v > 0):
+            raise ValueError(f"virtual_leg: {name} must be positive and finite, got {v}")
+    wn = 2 * math.pi * fn
+    return VirtualLeg(m=float(mass), b=float(2 * zeta * wn * mass), k=float(mass * wn ** 2), zeta=float(zeta),
+                      fn=float(fn))
+
+
+# ---------------------------------------------------------------------------------------
+# Table 6.1 and Listing 7.1
+# ---------------------------------------------------------------------------------------
+
+#: Table 6.1 as printed (SI).
+TABLE_6_1 = {"Ra": 1.2, "La": 0.56e-3, "Kt": 25.5e-3, "tm": 17.1e-3, "J": 92.5e-7, "p": 3, "Kb": 0.0764,
+             "B1": 0.1, "Hc": 1.0}
+#: Listing 7.1: torque_constant = 8.27/340 [N*m/A]; Table 4.3: KV 340 rpm/V, 69 (milli)ohm.
+LISTING_7_1_KT = 8.27 / 340
+TABLE_4_3_RESISTANCE = 69e-3
+
+
+def table_6_1_checks() -> list[dict]:
+    """Table 6.1's constants against each other and against Listing 7.1 / Table 4.3.
+
+    Returns
+    -------
+    list of dict: ``claim``, ``printed``, ``derived``, ``ratio`` (printed / derived), ``how``
+    """
+    T = TABLE_6_1
+    kv_si = 340 * 2 * math.pi / 60  # rad/s per V
+    rows = [
+        ("R_a (twice the phase resistance, Krishnan)", T["Ra"], 2 * TABLE_4_3_RESISTANCE, "2 x 69 mOhm (Table 4.3)"),
+        ("K_t [N m/A]", T["Kt"], LISTING_7_1_KT, "Listing 7.1: 8.27/340"),
+        ("K_b [V s/rad] (= K_t in SI)", T["Kb"], T["Kt"], "K_b = K_t (SI, same winding)"),
+        ("K_b [V s/rad] against KV", T["Kb"], 1 / kv_si, "1/KV = 60/(2 pi 340)"),
+        ("t_m [s] = J R_a / (K_t K_b)", T["tm"], T["J"] * T["Ra"] / (T["Kt"] * T["Kb"]), "with the printed K_b"),
+        ("t_m [s] = J R_a / K_t^2", T["tm"], T["J"] * T["Ra"] / T["Kt"] ** 2, "with K_b = K_t"),
+        ("J / B_1 [s] (mechanical friction time)", T["J"] / T["B1"], T["tm"], "against t_m"),
+    ]
+    return [{"claim": c, "printed": float(p), "derived": float(d), "ratio": float(p / d), "how": h}
+            for c, p, d, h in rows]
+
+
+# ---------------------------------------------------------------------------------------
+# eq. 5.11: inputs, outputs, sensitivity; the sign of m4 lc4 in g2
+# ---------------------------------------------------------------------------------------
+
+def eq511_lumped(q0=(math.radians(267.0), math.radians(273.0)), g: float = 9.81) -> dict:
+    """The four lumped quantities eq. 5.11 (Listing 7.5's decoupled form) pins down.
+
+    Returns
+    -------
+    dict: ``d11``, ``d22`` [kg m^2] = 1/B; ``K1`` = m1 lc1 + m3 lc3 + m4 l1 and ``K2`` =
+    m2 lc2 + m3 l2 + m4 lc4 [kg m] (Listing 7.5's sign) from A[1,0] and A[3,2]; the damping
+    ``c11, c12, c21, c22`` [N m s/rad] (A[3,3] read as -30.22).
+    """
+    A, B = M.THESIS_A, M.THESIS_B
+    d11, d22 = 1 / B[1, 0], 1 / B[3, 1]
+    return {"d11": d11, "d22": d22,
+            "K1": A[1, 0] * d11 / (g * math.sin(q0[0])), "K2": A[3, 2] * d22 / (g * math.sin(q0[1])),
+            "c11": -A[1, 1] * d11, "c12": -A[1, 3] * d11, "c21": -A[3, 1] * d22, "c22": -A[3, 3] * d22}
+
+
+def leg_for_lower_masses(leg: LegParams, m3: float, m4: float) -> tuple[LegParams, dict]:
+    """Re-solve the shipped parameter set for other lower-link masses ``m3``, ``m4`` [kg].
+
+    Follows data/params/leg_thesis.toml's recipe: lc3, lc4 from K1, K2, uniform-rod I3, I4,
+    and Jd1, Jd2 from d11, d22, so that the thesis form reproduces eq. 5.11 whatever the
+    masses. Returns the leg and a dict of flags (``lc3_on_link``, ``lc4_on_link``,
+    ``Jd_positive``): a guess is physical only if the COMs lie on the links and the drive
+    inertias are positive.
+    """
+    L = eq511_lumped(leg.q0, leg.g)
+    lc3 = (L["K1"] - leg.m1 * leg.lc1 - m4 * leg.l1) / m3
+    lc4 = (L["K2"] - leg.m2 * leg.lc2 - m3 * leg.l2) / m4
+    I3, I4 = m3 * leg.l3 ** 2 / 12, m4 * leg.l4 ** 2 / 12
+    Jd1 = L["d11"] - (leg.m1 * leg.lc1 ** 2 + m3 * lc3 ** 2 + m4 * leg.l1 ** 2 + leg.I1 + I3)
+    Jd2 = L["d22"] - (leg.m2 * leg.lc2 ** 2 + m3 * leg.l2 ** 2 + m4 * lc4 ** 2 + leg.I2 + I4)
+    new = leg.replace(m3=m3, m4=m4, lc3=lc3, lc4=lc4, I3=I3, I4=I4, Jd1=Jd1, Jd2=Jd2)
+    flags = {"lc3_on_link": bool(0 <= lc3 <= leg.l3), "lc4_on_link": bool(0 <= lc4 <= leg.l4),
+             "Jd_positive": bool(Jd1 > 0 and Jd2 > 0)}
+    return new, flags
+
+
+def eq511_sensitivity(leg: LegParams, masses=(0.07, 0.085, 0.1, 0.115, 0.13)) -> list[dict]:
+    """How the exact five-bar's linearization depends on the guessed lower-link masses.
+
+    For each m3 = m4 in ``masses`` [kg] the parameter set is re-solved from eq. 5.11
+    (:func:`leg_for_lower_masses`): the thesis form then reproduces eq. 5.11 by construction
+    (its inputs), while the exact five-bar's coupled A (an output) moves.
+
+    Returns
+    -------
+    list of dict: ``m_lower`` [kg], ``lc3``, ``lc4`` [m], ``Jd1``, ``Jd2`` [kg m^2], the
+    physical flags, ``thesis_A`` and ``exact_A`` (4x4 lists) and the exact model's
+    ``A10``, ``A12``, ``A30``, ``A32`` [1/s^2], ``B10``, ``B31`` [1/(kg m^2)], ``eig`` (open loop)
+    """
+    rows = []
+    for m in masses:
+        lg, flags = leg_for_lower_masses(leg, m, m)
+        th = M.linearize(lg)
+        ex = M.linearize(lg, coupled=True, model="fivebar")
+        A, B = np.asarray(ex.A), np.asarray(ex.B)
+        rows.append({"m_lower": float(m), "lc3": lg.lc3, "lc4": lg.lc4, "Jd1": lg.Jd1, "Jd2": lg.Jd2, **flags,
+                     "thesis_A": np.asarray(th.A).tolist(), "exact_A": A.tolist(),
+                     "A10": float(A[1, 0]), "A12": float(A[1, 2]), "A30": float(A[3, 0]), "A32": float(A[3, 2]),
+                     "B10": float(B[1, 0]), "B31": float(B[3, 1]),
+                     "eig": [complex(e) for e in np.linalg.eigvals(A)]})
+    return rows
+
+
+def gravity_stiffness(leg: LegParams, q=None, model: str = "fivebar", eps: float = 1e-6) -> np.ndarray:
+    """dg/dq [N m/rad] (2x2) of the gravity torques of ``model`` at ``q`` (default q0)."""
+    q1, q2 = leg.q0 if q is None else (float(q[0]), float(q[1]))
+    K = np.empty((2, 2))
+    for j, d in enumerate(((eps, 0.0), (0.0, eps))):
+        K[:, j] = (np.asarray(M.gravity_torque(leg, q1 + d[0], q2 + d[1], model=model))
+                   - np.asarray(M.gravity_torque(leg, q1 - d[0], q2 - d[1], model=model))) / (2 * eps)
+    return K
+
+
+def g2_sign_check(leg: LegParams) -> dict:
+    """Joint 2's gravity stiffness with eq. 5.4's sign (-m4 lc4), Listing 7.5's (+m4 lc4) and
+    the exact coaxial five-bar, at the operating point.
+
+    Returns
+    -------
+    dict: ``k22_eq54``, ``k22_listing``, ``k22_exact`` = dg2/dq2 [N m/rad]; ``A32_eq54``,
+    ``A32_listing`` = -k22 / d22 of the decoupled form and ``A32_exact`` (coupled exact
+    five-bar) [1/s^2]; ``A32_thesis`` = eq. 5.11's -65.78; ``supported`` ("+" or "-"): the
+    sign whose stiffness is nearer the exact model's.
+    """
+    q2 = leg.q0[1]
+    d22 = 1 / np.asarray(M.linearize(leg).B)[3, 1]
+    base = leg.m2 * leg.lc2 + leg.m3 * leg.l2
+    k_minus = -leg.g * math.sin(q2) * (base - leg.m4 * leg.lc4)
+    k_plus = -leg.g * math.sin(q2) * (base + leg.m4 * leg.lc4)
+    k_exact = float(gravity_stiffness(leg, model="fivebar")[1, 1])
+    ex = np.asarray(M.linearize(leg, coupled=True, model="fivebar").A)
+    return {"k22_eq54": k_minus, "k22_listing": k_plus, "k22_exact": k_exact,
+            "A32_eq54": -k_minus / d22, "A32_listing": -k_plus / d22, "A32_exact": float(ex[3, 2]),
+            "A32_thesis": float(M.THESIS_A[3, 2]),
+            "supported": "+" if abs(k_plus - k_exact) < abs(k_minus - k_exact) else "-"}
