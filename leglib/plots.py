@@ -192,3 +192,54 @@ def plot_map_slices(gm, field: str = "zeta", axes=None):
         images.append(im)
     axes[-1].figure.colorbar(images[-1], ax=list(axes))
     return images
+
+
+def plot_thesis_peaks(t, reading, ax=None):
+    """Listing 7.7's view of a step (the thesis's Fig. 6.10): smooth(-y) [m] with the peaks
+    ``findpeaks`` found as red circles and the reading (thesis measure) in the legend.
+
+    ``reading`` is a :class:`leglib.identify.ThesisReading` of ``t``.
+    """
+    ax = _ax(ax)
+    label = (f"Listing 7.7: zeta = {reading.zeta:.3f}, 1/(t2 - t1) = {reading.fd:.2f} Hz"
+             if not reading.flagged else f"Listing 7.7: {reading.n_peaks} peak(s), zeta set to {reading.zeta:g}")
+    arts = ax.plot(t, reading.smoothed, "b-", lw=1.5, label="smooth(-y)")
+    arts += ax.plot(reading.peak_times, reading.peak_values, "ro", mfc="none", ms=8, mew=1.5,
+                    label=f"findpeaks: {reading.n_peaks} peaks")
+    if reading.n_peaks >= 2:
+        arts += ax.plot(reading.peak_times[:2], reading.peak_values[:2], "r*", ms=12, label=label)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("-y of Listing 7.7 [m]")
+    ax.legend(fontsize=8)
+    return arts
+
+
+def plot_readings_map(rows, measure: str = "thesis", ax=None, targets=None):
+    """Measured grid points of a sweep in one measure (rows of
+    :func:`leglib.thesis.compare_readings`).
+
+    ``measure="thesis"``: Listing 7.7's zeta against its 1/(t2 - t1) [Hz], on the thesis's
+    Fig. 6.12 axes (0-1, 0-10 Hz); ``"true"``: the least-squares zeta against fn [Hz].
+    ``targets``: dict label -> (zeta, f) drawn as crosses, in the same measure.
+    """
+    ax = _ax(ax)
+    ok = [r for r in rows if r["status"] == "ok" and (measure == "true" or not r["thesis_flagged"])]
+    if measure == "thesis":
+        x = np.array([r["thesis_zeta"] for r in ok])
+        y = np.array([r["thesis_f_hz"] for r in ok])
+        ax.set_xlim(0, 1)
+        ax.set_ylim(0, 10)
+        ax.set_xlabel("zeta by Listing 7.7 [-]")
+        ax.set_ylabel("1/(t2 - t1) by Listing 7.7 [Hz]")
+    elif measure == "true":
+        x = np.array([r["zeta"] for r in ok])
+        y = np.array([r["fn"] for r in ok])
+        ax.set_xlabel("zeta, least squares [-]")
+        ax.set_ylabel("fn, least squares [Hz]")
+    else:
+        raise ValueError(f"measure must be 'thesis' or 'true', got {measure!r}")
+    arts = [ax.scatter(x, y, s=12, c="b", label=f"measured grid points ({len(ok)})")]
+    for (label, (z, f)), style in zip((targets or {}).items(), ["rx", "m+", "g^", "kd"]):
+        arts += ax.plot([z], [f], style, ms=10, mew=2, label=label)
+    ax.legend(fontsize=8)
+    return arts

@@ -76,6 +76,30 @@ def listing_signal(q1, q2) -> np.ndarray:
     return M.thesis_listing_height(M.zeroed_degrees(q1), M.zeroed_degrees(q2))
 
 
+def equivalent_angle_deg(peak_value: float, length: float = M.LISTING_LENGTH) -> float:
+    """The joint angle change [deg] that, on both joints alike, gives Listing 7.7's
+    smooth(-y) the value ``peak_value`` [m]: arccos(-peak / (2 * 0.16))."""
+    return float(np.degrees(np.arccos(np.clip(-peak_value / (2 * length), -1.0, 1.0))))
+
+
+def first_peak_needed(thesis_zeta: float, second_peak_deg: float = STEP_DEG) -> dict:
+    """What Listing 7.7's zeta demands of a response: pks(1)/pks(2) = exp(-delta), with
+    delta = 2 pi zeta / sqrt(1 - zeta^2) (eq. 6.7 inverted).
+
+    Returns
+    -------
+    dict: ``delta``, ``peak_ratio`` = pks(1)/pks(2), ``first_peak_deg``: the joint swing
+    at the first peak [deg] when the second peak sits at ``second_peak_deg`` (default the
+    step's 48 deg, i.e. settled), and ``overshoot`` of that first peak relative to 48 deg
+    """
+    if not 0 < thesis_zeta < 1:
+        raise ValueError(f"thesis_zeta must lie in (0, 1), got {thesis_zeta}")
+    delta = 2 * math.pi * thesis_zeta / math.sqrt(1 - thesis_zeta ** 2)
+    ratio = math.exp(-delta)
+    a1 = math.degrees(math.acos(ratio * math.cos(math.radians(second_peak_deg))))
+    return {"delta": delta, "peak_ratio": ratio, "first_peak_deg": a1, "overshoot": a1 / STEP_DEG - 1}
+
+
 def read_step(resp) -> ThesisReading:
     """Listing 7.7's reading of a :class:`leglib.odrive_io.StepResponse` (thesis measure)."""
     return second_order(resp.t, listing_signal(resp.q1, resp.q2), method="thesis")
@@ -147,38 +171,53 @@ def true_from_reading(thesis_zeta: float, thesis_f_hz: float, step_deg: float = 
     return {"zeta": float(z), "fd": fd, "fn": float(fn), "wn": float(2 * math.pi * fn)}
 
 
-def compare_readings(responses, leg=None) -> list[dict]:
+def compare_readings(responses) -> list[dict]:
     """Both measures for every step response: Listing 7.7's reading and the true fit.
 
     Parameters
     ----------
     responses : iterable of :class:`leglib.odrive_io.StepResponse`
-    leg : unused (the foot height ``resp.y`` is already exact)
 
     Returns
     -------
     list of dict: ``gains``, ``status`` ("ok", "unstable", "failed"), ``thesis_zeta``,
     ``thesis_f_hz`` (1/(t2 - t1)), ``thesis_flagged`` (fewer than two peaks: the listing's
-    constants), ``zeta``, ``fn``, ``fd`` (true, least squares on the foot height), ``reason``
+    constants), ``first_peak_deg`` (:func:`equivalent_angle_deg` of the first peak), ``zeta``,
+    ``fn``, ``fd`` (true, least squares on the foot height), ``reason``
     """
     out = []
     nan = float("nan")
     for r in responses:
         row = {"gains": tuple(float(g) for g in r.gains), "status": "ok", "thesis_zeta": nan,
-               "thesis_f_hz": nan, "thesis_flagged": True, "zeta": nan, "fn": nan, "fd": nan, "reason": ""}
+               "thesis_f_hz": nan, "thesis_flagged": True, "first_peak_deg": nan, "zeta": nan, "fn": nan, "fd": nan, "reason": ""}
         if not r.completed:
             row.update(status="unstable", reason=r.abort_reason or "aborted")
             out.append(row)
             continue
         try:
             th = read_step(r)
-            row.update(thesis_zeta=th.zeta, thesis_f_hz=th.fd, thesis_flagged=th.flagged)
+            row.update(thesis_zeta=th.zeta, thesis_f_hz=th.fd, thesis_flagged=th.flagged,
+                       first_peak_deg=equivalent_angle_deg(th.peak_values[0]) if th.n_peaks else nan)
             f = second_order(r.t, r.y)
             row.update(zeta=f.zeta, fn=f.fn, fd=f.fd)
         except IdentificationError as exc:
             row.update(status="failed", reason=str(exc))
         out.append(row)
     return out
+
+
+def read_sweep(sweep_dir, leg) -> list[dict]:
+    """:func:`compare_readings` of every measurement file in ``sweep_dir`` (``leg``:
+    LegParams or a parameter-set name, for the files' kinematics)."""
+    from . import dataio
+    from .odrive_io import StepResponse
+    from .params import load_leg
+
+    leg = load_leg(leg) if isinstance(leg, str) else leg
+    paths = dataio.list_measurements(sweep_dir)
+    if not paths:
+        raise ValueError(f"no measurement files in {sweep_dir}")
+    return compare_readings(StepResponse.from_measurement(dataio.read_measurement(p), leg) for p in paths)
 
 
 def nearest_reading(rows: list[dict], zeta: float, f_hz: float) -> dict:
