@@ -479,7 +479,9 @@ def _thesis_decoupled_AB(leg: LegParams, q0):
     d11 = leg.m1 * leg.lc1 ** 2 + leg.m3 * leg.lc3 ** 2 + leg.m4 * leg.l1 ** 2 + leg.I1 + leg.I3 + leg.Jd1
     d22 = leg.m2 * leg.lc2 ** 2 + leg.m3 * leg.l2 ** 2 + leg.m4 * leg.lc4 ** 2 + leg.I2 + leg.I4 + leg.Jd2
     k1 = leg.m1 * leg.lc1 + leg.m3 * leg.lc3 + leg.m4 * leg.l1
-    k2 = leg.m2 * leg.lc2 + leg.m3 * leg.l2 + leg.m4 * leg.lc4  # Listing 7.5's sign
+    # Listing 7.5's +m4 lc4: the sign this coaxial leg's exact five-bar supports (eq. 5.4's
+    # minus is Spong's parallelogram; leglib.thesis.g2_sign_check)
+    k2 = leg.m2 * leg.lc2 + leg.m3 * leg.l2 + leg.m4 * leg.lc4
     A = np.array([
         [0.0, 1.0, 0.0, 0.0],
         [leg.g * k1 * math.sin(q0[0]) / d11, -leg.c11 / d11, 0.0, -leg.c12 / d11],

@@ -34,7 +34,7 @@ def test_coupled_parallelogram_linearization_matches_symbolic_form(leg):
     q1, q2 = leg.q0
     D = M.mass_matrix(leg, q1, q2, model="parallelogram")
     k1 = leg.m1 * leg.lc1 + leg.m3 * leg.lc3 + leg.m4 * leg.l1
-    k2 = leg.m2 * leg.lc2 + leg.m3 * leg.l2 - leg.m4 * leg.lc4  # eq. 5.4's sign
+    k2 = leg.m2 * leg.lc2 + leg.m3 * leg.l2 - leg.m4 * leg.lc4  # eq. 5.4's sign (Spong's parallelogram)
     dG = np.diag([-leg.g * k1 * math.sin(q1), -leg.g * k2 * math.sin(q2)])
     Dinv = np.linalg.inv(D)
     sys = M.linearize(leg, coupled=True, model="parallelogram")

@@ -38,7 +38,8 @@ def _write_variant(tmp_path: Path, old: str, new: str) -> Path:
 @pytest.mark.parametrize("old,new,message", [
     ('m3 = { value = 100.0, unit = "g", source = "lower link with pins, bearings, foot (estimate)" }\n', "",
      "missing field 'mass.m3'"),
-    ('value = 0.09,  unit = "m", source = "Stanford Doggo upper link (design.md)" }',
+    ('value = 0.09,  unit = "m", source = "Stanford Doggo upper link L1 (Doggo firmware leg kinematics; '
+     'README, How the shipped parameters were obtained)" }',
      'value = "0.09", unit = "m" }', "field 'geometry.l1': value must be a number"),
     ('value = 55.0,  unit = "g"', 'value = -55.0, unit = "g"', "field 'mass.m1': value must be positive"),
     ('value = 0.162, unit = "m"', 'value = 0.162, unit = "kg"', "field 'geometry.l3': unit 'kg' is kg"),
