@@ -148,8 +148,9 @@ def true_from_reading(thesis_zeta: float, thesis_f_hz: float, step_deg: float = 
     """The ideal second-order step whose Listing 7.7 reading is (``thesis_zeta``,
     ``thesis_f_hz``): what a thesis-measure number means in true zeta, fd, fn.
 
-    Listing 7.7's zeta falls monotonically with the true zeta over ``bracket`` on ideal steps
-    of ``step_deg`` (checked here on the way); 1/(t2 - t1) is fd.
+    Listing 7.7's zeta falls with the true zeta over ``bracket`` on ideal steps of ``step_deg``
+    (tests/test_thesis.py checks it; here the bracket's ends must straddle the reading);
+    1/(t2 - t1) is fd. Sampled as Listing 7.4 records (2 ms).
 
     Returns
     -------
@@ -189,7 +190,8 @@ def compare_readings(responses) -> list[dict]:
     nan = float("nan")
     for r in responses:
         row = {"gains": tuple(float(g) for g in r.gains), "status": "ok", "thesis_zeta": nan,
-               "thesis_f_hz": nan, "thesis_flagged": True, "first_peak_deg": nan, "zeta": nan, "fn": nan, "fd": nan, "reason": ""}
+               "thesis_f_hz": nan, "thesis_flagged": True, "first_peak_deg": nan,
+               "zeta": nan, "fn": nan, "fd": nan, "reason": ""}
         if not r.completed:
             row.update(status="unstable", reason=r.abort_reason or "aborted")
             out.append(row)
