@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -72,19 +71,13 @@ def _jsonable(obj):
 
 
 def write_json_atomic(path: str | Path, data: dict) -> Path:
-    """Write ``data`` as JSON via a temporary file and rename (never a half-written file)."""
+    """Write ``data`` as JSON via a temporary file and rename (never a half-written file;
+    created with the user's umask)."""
+    from .dataio import write_bytes_atomic
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(_jsonable(data), fh, indent=2, sort_keys=True)
-            fh.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    text = json.dumps(_jsonable(data), indent=2, sort_keys=True) + "\n"
+    return write_bytes_atomic(path, text.encode(), overwrite=True)
 
 
 def write_metrics(path: str | Path, **metrics) -> Path:
