@@ -73,6 +73,18 @@ def _read_spec_text(path: Path) -> str:
         raise SpecError(f"{path}:{line}: not UTF-8 text (byte 0x{raw[exc.start]:02x})") from None
 
 
+_INSPECTED: dict = {}
+
+
+def _inspect(path: Path) -> dict:
+    """papermill's view of a notebook's parameters, cached while the file is unchanged."""
+    import papermill as pm
+    key = (str(path), path.stat().st_mtime_ns)
+    if key not in _INSPECTED:
+        _INSPECTED[key] = pm.inspect_notebook(str(path))
+    return _INSPECTED[key]
+
+
 def load_spec(path: str | Path) -> dict:
     """Read and check a batch spec; SpecError names the file and the field.
 
@@ -114,8 +126,7 @@ def load_spec(path: str | Path) -> dict:
     parameters = spec.get("parameters", {})
     if not isinstance(parameters, dict):
         raise SpecError(f"{path}: field 'parameters' must be a table")
-    import papermill as pm
-    inspected = [pm.inspect_notebook(str(NOTEBOOK_DIR / f"{nb}.ipynb")) for nb in nbs]
+    inspected = [_inspect(NOTEBOOK_DIR / f"{nb}.ipynb") for nb in nbs]
     known = set().union(*inspected)
     types = {}
     for params in inspected:

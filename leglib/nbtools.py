@@ -1,8 +1,10 @@
 """Small helpers that every notebook uses: parameter checks, metrics, figure output.
 
 Notebooks keep a ``parameters`` cell of plain typed values; the first cell after it calls
-:func:`require` for each, so a bad value stops the notebook at once with a message that
-names the parameter.
+:func:`require` (and :func:`require_seed`, :func:`require_order`,
+:func:`require_writable_dir`, :func:`require_writable_file`, :func:`require_readable_file`)
+for every parameter, before any experiment runs, so a bad value stops the notebook at once
+with a message that names the parameter.
 """
 
 from __future__ import annotations
@@ -50,6 +52,73 @@ def require(name: str, value: Any, kind: type | tuple, *, choices: Iterable | No
         if high is not None and value > high:
             raise NotebookParameterError(f"parameter {name!r} must be <= {high}, got {value!r}")
     return value
+
+
+SEED_MAX = 2**32 - 1  # numpy's SeedSequence accepts 0 .. 2**32 - 1 for a plain int seed
+
+
+def require_seed(name: str, value: Any) -> int:
+    """Check a random seed: an int in 0 .. 2**32 - 1 (numpy refuses negative seeds)."""
+    return require(name, value, int, low=0, high=SEED_MAX)
+
+
+def require_order(low_name: str, low_value: float, high_name: str, high_value: float,
+                  allow_equal: bool = False) -> None:
+    """Check that ``low_value`` is below ``high_value`` (or equal, with ``allow_equal``)."""
+    ok = low_value <= high_value if allow_equal else low_value < high_value
+    if not ok:
+        rel = "at most" if allow_equal else "below"
+        raise NotebookParameterError(f"parameter {low_name!r} ({low_value!r}) must be {rel} "
+                                     f"{high_name!r} ({high_value!r})")
+
+
+def _nearest_existing(path: Path) -> Path:
+    p = path
+    while not os.path.lexists(p) and p != p.parent:
+        p = p.parent
+    return p
+
+
+def require_writable_dir(name: str, value: Any) -> Path:
+    """Check that directory ``value`` exists and is writable, or can be created: its nearest
+    existing ancestor is a writable directory. Nothing is created."""
+    require(name, value, str)
+    if not value.strip():
+        raise NotebookParameterError(f"parameter {name!r} must be a directory path, got {value!r}")
+    path = Path(value).expanduser().absolute()
+    base = _nearest_existing(path)
+    if base == path and not path.is_dir():
+        raise NotebookParameterError(f"parameter {name!r}: {value} exists and is not a directory")
+    if not base.is_dir():
+        raise NotebookParameterError(f"parameter {name!r}: {value} cannot be created: {base} is not a directory")
+    if not os.access(base, os.W_OK | os.X_OK):
+        raise NotebookParameterError(f"parameter {name!r}: {value} is not writable ({base} is read-only)")
+    return path
+
+
+def require_writable_file(name: str, value: Any) -> Path:
+    """Check that file ``value`` can be written: not a directory, its directory writable
+    (or creatable)."""
+    require(name, value, str)
+    path = Path(value).expanduser().absolute()
+    if path.is_dir() or not path.name:
+        raise NotebookParameterError(f"parameter {name!r}: {value} is a directory, expected a file path")
+    if os.path.lexists(path) and not path.is_file():
+        raise NotebookParameterError(f"parameter {name!r}: {value} exists and is not a regular file")
+    require_writable_dir(name, str(path.parent))
+    return path
+
+
+def require_readable_file(name: str, value: Any) -> Path:
+    """Check that ``value`` names an existing, readable regular file."""
+    require(name, value, str)
+    path = Path(value).expanduser()
+    if not path.is_file():
+        what = "is not a regular file" if os.path.lexists(path) else "does not exist"
+        raise NotebookParameterError(f"parameter {name!r}: {value} {what}")
+    if not os.access(path, os.R_OK):
+        raise NotebookParameterError(f"parameter {name!r}: {value} is not readable")
+    return path
 
 
 def _jsonable(obj):
