@@ -734,7 +734,8 @@ def check_provenance(directory: str | Path, record: dict, write: bool = False) -
 
     ``record`` is :func:`sweep_record`'s (or ``{"device": Device.describe()}``): fields
     present on both sides are compared. The directory's record is its ``sweep.json``;
-    without one (older directories) the sidecars of its measurements are compared. With
+    without one (older directories) the sidecars of its measurements are compared, and a
+    thesis file (no sidecar) counts as measured on the real leg (backend "usb"). With
     ``write=True`` the record is stored when the directory has none. Raises
     ProvenanceError naming the file and every differing field.
     """
@@ -759,6 +760,15 @@ def check_provenance(directory: str | Path, record: dict, write: bool = False) -
             for p in list_measurements(d):
                 side = sidecar_path(p)
                 if not side.is_file():
+                    try:
+                        read_measurement(p)
+                    except MeasurementError:
+                        continue  # not a thesis file (an orphan, damaged): set aside by a sweep
+                    if not is_leglib_name(p):  # a thesis file: measured on the real leg
+                        diffs = _differences({"device": {"backend": "usb"}}, ours)
+                        if diffs:
+                            where = p
+                            break
                     continue
                 try:
                     meta = json.loads(side.read_text())
@@ -789,3 +799,36 @@ def check_provenance(directory: str | Path, record: dict, write: bool = False) -
 def _short_json(v) -> str:
     s = json.dumps(v, default=str)
     return s if len(s) <= EXCERPT else s[:EXCERPT] + "..."
+
+
+def check_result_provenance(result_path: str | Path, device: dict, ignore=("twin_seed",)) -> None:
+    """Refuse a cached result (a JSON file whose ``source`` names the measurement it was
+    derived from, e.g. notebook 02's identified leg) that comes from another leg.
+
+    The measurement's sidecar is compared with ``device`` (identity fields of
+    ``Device.describe()``, or the subset known before connecting) on the fields both have,
+    except ``ignore`` (by default the twin's noise seed: another seed is the same leg).
+    A result without a readable source is reported with a warning, not trusted silently.
+    """
+    result_path = Path(result_path)
+    raw = _read_regular(result_path, MAX_SIDECAR_BYTES, "result file")
+    try:
+        doc = json.loads(_decode(result_path, raw, "result file"))
+    except json.JSONDecodeError as exc:
+        raise MeasurementError(f"{result_path}:{exc.lineno}: not valid JSON: {exc.msg}") from None
+    source = doc.get("source") if isinstance(doc, dict) else None
+    side = sidecar_path(source) if isinstance(source, str) else None
+    if side is None or not side.is_file():
+        warnings.warn(f"{result_path}: its source measurement {source!r} is not available; "
+                      f"cannot check that it comes from this leg", stacklevel=2)
+        return
+    meta = json.loads(_decode(side, _read_regular(side, MAX_SIDECAR_BYTES, "sidecar"), "sidecar"))
+    if not isinstance(meta, dict):
+        raise MeasurementError(f"{side}: sidecar must be a JSON object, got {type(meta).__name__}")
+    theirs = {k: v for k, v in sweep_record(meta)["device"].items() if k not in ignore}
+    ours = {k: v for k, v in sweep_record(device)["device"].items() if k not in ignore}
+    diffs = _differences(theirs, ours)
+    if diffs:
+        text = "; ".join(f"{k}: {_short_json(a)} there, {_short_json(b)} now" for k, a, b in diffs[:6])
+        raise ProvenanceError(f"{result_path}: derived from {source}, measured on another leg ({text}); "
+                              f"derive it again for this leg or point to its own result")

@@ -187,6 +187,16 @@ def device_options(backend: str, seed: int, plant: str, payload_mass: float = 0.
     return {"seed": seed, "plant": load_plant(plant, payload_mass=float(payload_mass))}
 
 
+def device_identity(backend: str, options: dict) -> dict:
+    """What a notebook knows of its leg before connecting, in ``Device.describe()``'s terms:
+    the backend and, on the twin, the plant's values (payload included)."""
+    ident = {"backend": backend}
+    plant = options.get("plant")
+    if plant is not None:
+        ident["twin_plant_values"] = {k: v for k, v in vars(plant).items() if k != "source_file"}
+    return ident
+
+
 def use_repo_root() -> Path:
     """Make the repository root the working directory, so a notebook's relative paths
     (``data/...``, ``reports/...``) mean the same opened in JupyterLab (whose kernels start

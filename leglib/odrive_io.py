@@ -611,6 +611,7 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
 
     set_aside: list[Path] = []
     done: set = set()
+    done_rounded: set = set()
     for p in existing:
         try:
             m = dataio.read_measurement(p)
@@ -619,6 +620,8 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
             continue
         if m.gains is not None:
             done.add(tuple(float(x) for x in m.gains))
+            if not m.meta.get("gains"):  # a thesis file: its name holds three decimals only
+                done_rounded.add(dataio.gains_key(m.gains))
     for p in dataio.find_uncommitted(out_dir):
         g = dataio.gains_of_uncommitted(p)
         c = dataio.claim(out_dir, g) if g is not None else None
@@ -630,7 +633,7 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
     pending, seen = [], set(done)
     for g in grid:
         k = tuple(float(x) for x in g)
-        if k not in seen:
+        if k not in seen and dataio.gains_key(g) not in done_rounded:
             seen.add(k)
             pending.append(g)
     skipped = len(grid) - len(pending)

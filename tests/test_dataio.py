@@ -258,3 +258,19 @@ def test_claims_are_exclusive_and_released(tmp_path):
     assert dataio.claim(tmp_path, (1.0, 2.0, 3.0000001)) is not None
     c.release()
     assert dataio.claim(tmp_path, (1.0, 2.0, 3.0)) is not None
+
+
+def test_cached_result_from_another_leg_is_refused(tmp_path):
+    t = np.arange(5) * 0.002
+    meta = {"backend": "virtual", "twin_seed": 4, "twin_plant_values": {"payload_mass": 0.0, "inertia_scale": 0.9}}
+    src = dataio.write_measurement(tmp_path, t, 267 + t, 273 - t, meta)
+    result = tmp_path / "identified.json"
+    result.write_text(json.dumps({"source": str(src), "leg": {}}))
+    here = {"backend": "virtual", "twin_seed": 2, "twin_plant_values": {"payload_mass": 0.0, "inertia_scale": 0.9}}
+    dataio.check_result_provenance(result, here)  # another noise seed: the same leg
+    heavy = {"backend": "virtual", "twin_plant_values": {"payload_mass": 0.5, "inertia_scale": 0.9}}
+    with pytest.raises(dataio.ProvenanceError, match=r"payload_mass: 0\.0 there, 0\.5 now"):
+        dataio.check_result_provenance(result, heavy)
+    result.write_text(json.dumps({"source": str(tmp_path / "gone_positions.csv")}))
+    with pytest.warns(UserWarning, match="cannot check"):
+        dataio.check_result_provenance(result, heavy)

@@ -94,11 +94,16 @@ def test_old_orphan_csv_is_set_aside_and_measured_again(dev, tmp_path):
     _complete_and_correct(tmp_path, GRID)
 
 
-def test_thesis_files_count_as_done(dev, tmp_path):
+def test_thesis_files_are_the_real_leg_and_count_as_done(dev, tmp_path, monkeypatch):
     thesis = tmp_path / "20210701_123005_30.000;0.050;0.020_positions.csv"
     thesis.write_text("0.000000,0.000000,0.000000\n0.002000,-0.5,0.5\n")
-    res = io.sweep(dev, GRID, tmp_path, **SHORT)
-    assert res.skipped == 1 and len(res.written) == 2
+    with pytest.raises(dataio.ProvenanceError, match="backend: \"usb\" there, \"virtual\" now"):
+        io.sweep(dev, GRID, tmp_path, **SHORT)  # the twin never completes a real leg's sweep
+    # on the real leg (its description stood in for here) the thesis file's point is done,
+    # matched on the three decimals its name holds
+    monkeypatch.setattr(dev, "describe", lambda: {"backend": "usb", "firmware": "0.5.6"})
+    res = io.sweep(dev, [(30.0, 0.0501, 0.02), (20.0, 0.0021, 0.02)], tmp_path, **SHORT)
+    assert res.skipped == 1 and len(res.written) == 1
 
 
 def test_sweep_on_another_payload_is_refused(dev, tmp_path):
