@@ -17,9 +17,12 @@ that failed and does not stop the others. ``index.html`` and ``summary.png`` lis
 
 from __future__ import annotations
 
+import difflib
 import hashlib
 import itertools
 import json
+import math
+import re
 import tomllib
 from pathlib import Path
 
@@ -30,38 +33,128 @@ class SpecError(ValueError):
     """A batch spec is malformed."""
 
 
-def load_spec(path: str | Path) -> dict:
-    """Read and check a batch spec; SpecError names the file and the field."""
-    from .notebooks import NOTEBOOK_DIR
-    path = Path(path)
+SPEC_KEYS = ("name", "notebooks", "parameters", "grid")
+NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$", re.ASCII)
+MAX_SPEC_BYTES = 1 << 20
+MAX_RUNS = 10_000
+_TYPES = {"int": (int,), "float": (int, float), "str": (str,), "bool": (bool,)}
+
+
+def _did_you_mean(name, known) -> str:
+    close = difflib.get_close_matches(str(name), list(known), n=1, cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else f"; known: {', '.join(sorted(known))}"
+
+
+def _short(value, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
+def _read_spec_text(path: Path) -> str:
+    import stat
     try:
-        spec = tomllib.loads(path.read_text())
+        st = path.stat()
     except FileNotFoundError:
         raise SpecError(f"{path}: spec not found") from None
+    except OSError as exc:
+        raise SpecError(f"{path}: cannot read spec ({exc.strerror})") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise SpecError(f"{path}: not a regular file")
+    if st.st_size > MAX_SPEC_BYTES:
+        raise SpecError(f"{path}: {st.st_size} bytes; a spec is at most {MAX_SPEC_BYTES}")
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise SpecError(f"{path}: cannot read spec ({exc.strerror})") from None
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise SpecError(f"{path}:{line}: not UTF-8 text (byte 0x{raw[exc.start]:02x})") from None
+
+
+_INSPECTED: dict = {}
+
+
+def _inspect(path: Path) -> dict:
+    """papermill's view of a notebook's parameters, cached while the file is unchanged."""
+    import papermill as pm
+    key = (str(path), path.stat().st_mtime_ns)
+    if key not in _INSPECTED:
+        _INSPECTED[key] = pm.inspect_notebook(str(path))
+    return _INSPECTED[key]
+
+
+def load_spec(path: str | Path) -> dict:
+    """Read and check a batch spec; SpecError names the file and the field.
+
+    Refused: unknown top-level keys (with a suggestion), a ``name`` that is not a plain
+    directory name (letters, digits, ``.``, ``_``, ``-``; at most 64 characters; not
+    ``.``/``..``), notebooks that do not exist, parameters no notebook of the spec takes,
+    values whose type differs from the notebook's parameter (an int where a float is
+    expected is fine), empty or repeated grid values, and more than MAX_RUNS runs. The
+    values' ranges are checked by each notebook's first cell.
+    """
+    from .notebooks import NOTEBOOK_DIR
+    path = Path(path)
+    text = _read_spec_text(path)
+    try:
+        spec = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise SpecError(f"{path}: not valid TOML: {exc}") from None
+        raise SpecError(f"{path}: not valid TOML: {str(exc)[:200]}") from None
+    for key in spec:
+        if key not in SPEC_KEYS:
+            raise SpecError(f"{path}: unknown key {key!r}{_did_you_mean(key, SPEC_KEYS)}")
     name = spec.get("name")
-    if not isinstance(name, str) or not name or "/" in name:
-        raise SpecError(f"{path}: field 'name' must be a non-empty string without '/'")
+    if not isinstance(name, str) or not NAME_RE.match(name) or name in (".", ".."):
+        raise SpecError(f"{path}: field 'name' must be a plain directory name (letters, digits, '.', "
+                        f"'_', '-'; at most 64 characters; not '.' or '..'), got {_short(name)}")
     nbs = spec.get("notebooks")
     if not isinstance(nbs, list) or not nbs:
         raise SpecError(f"{path}: field 'notebooks' must be a non-empty list of notebook names")
     for nb in nbs:
-        if not (NOTEBOOK_DIR / f"{nb}.ipynb").exists():
-            raise SpecError(f"{path}: notebook {nb!r} not found in {NOTEBOOK_DIR}")
+        if not isinstance(nb, str) or not NAME_RE.match(nb):
+            raise SpecError(f"{path}: field 'notebooks': {_short(nb)} is not a notebook name")
+        if not (NOTEBOOK_DIR / f"{nb}.ipynb").is_file():
+            known = sorted(q.stem for q in NOTEBOOK_DIR.glob("*.ipynb"))
+            raise SpecError(f"{path}: notebook {nb!r} not found in {NOTEBOOK_DIR}{_did_you_mean(nb, known)}")
+    if len(set(nbs)) != len(nbs):
+        raise SpecError(f"{path}: field 'notebooks' names a notebook twice")
     grid = spec.get("grid", {})
     if not isinstance(grid, dict) or not all(isinstance(v, list) and v for v in grid.values()):
         raise SpecError(f"{path}: field 'grid' must map parameter names to non-empty lists")
-    if not isinstance(spec.get("parameters", {}), dict):
+    parameters = spec.get("parameters", {})
+    if not isinstance(parameters, dict):
         raise SpecError(f"{path}: field 'parameters' must be a table")
-    import papermill as pm
-    known = set().union(*(pm.inspect_notebook(str(NOTEBOOK_DIR / f"{nb}.ipynb")) for nb in nbs))
+    inspected = [_inspect(NOTEBOOK_DIR / f"{nb}.ipynb") for nb in nbs]
+    known = set().union(*inspected)
+    types = {}
+    for params in inspected:
+        for k, v in params.items():
+            types.setdefault(k, v.get("inferred_type_name"))
     for field in ("parameters", "grid"):
-        for key in spec.get(field, {}):
+        for key, value in spec.get(field, {}).items():
             if key not in known:
-                raise SpecError(f"{path}: {field}.{key} is not a parameter of {', '.join(nbs)} "
-                                f"(they take: {', '.join(sorted(known))})")
-    return {"name": name, "notebooks": nbs, "parameters": spec.get("parameters", {}), "grid": grid}
+                raise SpecError(f"{path}: {field}.{key} is not a parameter of {', '.join(nbs)}"
+                                f"{_did_you_mean(key, known)}")
+            if field == "grid" and key in parameters:
+                raise SpecError(f"{path}: {key} is both in [parameters] and in [grid]")
+            values = value if field == "grid" else [value]
+            accepted = _TYPES.get(types.get(key))
+            for v in values:
+                bad_type = (isinstance(v, bool) and accepted != (bool,)) or \
+                    (accepted is not None and not isinstance(v, accepted))
+                if bad_type or not isinstance(v, (bool, int, float, str)):
+                    raise SpecError(f"{path}: {field}.{key} = {_short(v)}: expected "
+                                    f"{types.get(key) or 'a plain value'}")
+                if isinstance(v, float) and not math.isfinite(v):
+                    raise SpecError(f"{path}: {field}.{key} = {v!r}: not finite")
+            if field == "grid" and len({json.dumps(v) for v in values}) != len(values):
+                raise SpecError(f"{path}: grid.{key} repeats a value: {_short(values)}")
+    n_runs = math.prod(len(v) for v in grid.values())
+    if n_runs > MAX_RUNS:
+        raise SpecError(f"{path}: the grid makes {n_runs} runs, more than {MAX_RUNS}")
+    return {"name": name, "notebooks": nbs, "parameters": parameters, "grid": grid}
 
 
 def runs_of(spec: dict) -> list[dict]:
@@ -71,8 +164,10 @@ def runs_of(spec: dict) -> list[dict]:
     for values in itertools.product(*(spec["grid"][k] for k in keys)):
         params = {**spec["parameters"], **dict(zip(keys, values))}
         label = "_".join(f"{k}={v}" for k, v in zip(keys, values)) or "run"
+        # a plain directory name whatever the values hold; the digest keeps it unique
+        label = re.sub(r"[^A-Za-z0-9._=+-]", "-", label)[:80]
         digest = hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:8]
-        runs.append({"id": f"{label}-{digest}".replace("/", "-"), "params": params, "grid": dict(zip(keys, values))})
+        runs.append({"id": f"{label}-{digest}", "params": params, "grid": dict(zip(keys, values))})
     return runs
 
 

@@ -1,24 +1,66 @@
-"""Measurement files: the thesis's CSV plus a JSON sidecar, written atomically, read strictly.
+"""Measurement files: the thesis's CSV plus a JSON sidecar, committed as one unit, read strictly.
 
-A step response is ``YYYYmmdd_HHMMSS_<pos_gain>;<vel_gain>;<vel_integrator_gain>_positions.csv``
-(Listing 7.4's name, gains with three decimals) holding rows ``time [s], angle1 [deg],
-angle2 [deg]`` with no header. leglib writes absolute joint angles q1, q2; the thesis's own
-files hold angles relative to the start (no sidecar). The sidecar ``<stem>.json`` carries
-the exact gains, the backend, firmware, achieved sample rate, leglib version and git commit,
-the twin's seed and plant, and whether the response completed or was aborted.
+File names
+----------
+A measurement is ``<stem>_positions.csv`` with rows ``time [s], angle1 [deg], angle2 [deg]``
+(no header) and, for leglib's own files, a sidecar ``<stem>_positions.json``. Three kinds
+of name are read:
 
-Files are never rewritten: writing to an existing name is an error.
+* thesis files (Listing 7.4): ``YYYYmmdd_HHMMSS_<posP>;<velP>;<velI>_positions.csv`` with
+  three-decimal gains, angles relative to the start, **no sidecar**;
+* leglib files written before format 2: the same name with a sidecar (absolute angles);
+* leglib files (format 2): ``YYYYmmdd_HHMMSS_<posP>;<velP>;<velI>_lg<12 hex>_positions.csv``
+  with the *exact* gains (shortest round-trip decimal, so near-equal gains never share a
+  name) and a random ``lg`` part, which makes every name unique (two writers in one
+  directory in the same second never collide) and marks the file as leglib's own.
+
+Commit protocol
+---------------
+A format-2 measurement is committed by its CSV: the sidecar (holding the sample count and
+the SHA-256 of the CSV's bytes) is written first, then the CSV appears by an atomic link
+of a complete temporary file. So
+
+* a CSV is never visible before its sidecar is complete;
+* a sidecar without its CSV, or a hidden ``.*.tmp`` file, is an uncommitted write: readers
+  ignore it, :func:`find_uncommitted` lists it, and a resumed sweep moves it to
+  ``incomplete/`` and measures the point again;
+* a format-2 CSV without a sidecar, or whose bytes do not match the sidecar's hash, is an
+  error, never a thesis file.
+
+A sidecar-less file with a thesis name is a thesis file; its angles are relative to the
+start, so its first row must lie within :data:`RELATIVE_START_DEG` of zero -- an absolute
+angle there (e.g. 267 deg) is the orphan CSV of a pre-format-2 leglib write, and is
+refused rather than read as relative angles.
+
+Reading
+-------
+:func:`read_measurement` accepts only regular files of bounded size (:data:`MAX_CSV_BYTES`,
+:data:`MAX_SIDECAR_BYTES`), UTF-8 text, strict ASCII decimal numbers (no ``1_0``, no
+full-width digits, no NaN or infinity), angles within :data:`ANGLE_LIMIT_DEG`, increasing
+time, and checks the sidecar's types, sample count, hash, columns, angle convention,
+``completed`` flag and gains against the file and its name. Errors are
+:class:`MeasurementError` naming file, line and field, quoting at most
+:data:`EXCERPT` characters. :func:`read_measurements` reads a directory; with
+``strict=False`` it skips bad files and reports each (and warns), never silently.
+
+Files are never rewritten (writing an existing name is an error) and are created with
+the user's umask.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+import errno
+import fcntl
+import hashlib
 import json
 import math
 import os
 import re
+import secrets
+import stat
 import subprocess
-import tempfile
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,26 +68,83 @@ import numpy as np
 
 from . import __version__
 
-NAME_RE = re.compile(r"^(?P<stamp>\d{8}_\d{6})(?:_(?P<gains>[^_]+))?_positions\.csv$")
+FORMAT = 2
+MAX_CSV_BYTES = 64 << 20          # a 60 s run at 8 kHz is about 20 MB
+MAX_SIDECAR_BYTES = 16 << 20
+MAX_LINE_CHARS = 512
+EXCERPT = 60                      # characters of a bad line or value quoted in a message
+ANGLE_LIMIT_DEG = 3600.0          # |angle| beyond ten turns of a joint is not a measurement
+RELATIVE_START_DEG = 10.0         # a thesis file's first row is within this of zero
+COLUMNS = ["time [s]", "q1 [deg]", "q2 [deg]"]
+INCOMPLETE_DIR = "incomplete"
+PROVENANCE_FILE = "sweep.json"
+
+_NUM = r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
+NUMBER_RE = re.compile(rf"^{_NUM}$", re.ASCII)
+_ROW_RE = re.compile(rf"^[ \t]*({_NUM})[ \t]*,[ \t]*({_NUM})[ \t]*,[ \t]*({_NUM})[ \t]*\r?$", re.ASCII)
+NAME_RE = re.compile(r"^(?P<stamp>[0-9]{8}_[0-9]{6})(?:_(?P<gains>(?!lg)[^_]+))?"
+                     r"(?:_(?P<uid>lg[0-9a-f]{12}))?_positions\.csv$", re.ASCII)
+_UID_RE = re.compile(r"_lg[0-9a-f]{12}_positions\.json$", re.ASCII)
 
 
 class MeasurementError(ValueError):
-    """A measurement file is malformed; the message names the file (and line)."""
+    """A measurement file is malformed; the message names the file (and line, field)."""
 
+
+class ProvenanceError(ValueError):
+    """A directory holds measurements of another leg or experiment."""
+
+
+def _excerpt(text: str) -> str:
+    return repr(text) if len(text) <= EXCERPT else repr(text[:EXCERPT]) + f" ... ({len(text)} characters)"
+
+
+# -- names -------------------------------------------------------------------------------
 
 def gains_key(gains) -> str:
-    """The gains part of a file name: three decimals, ';'-separated (Listing 7.4)."""
+    """The thesis's gains part of a file name: three decimals, ';'-separated (Listing 7.4)."""
     return ";".join(f"{float(g):.3f}" for g in gains)
 
 
-def measurement_filename(gains=None, when: _dt.datetime | None = None) -> str:
+def exact_gains_key(gains) -> str:
+    """The gains part of a format-2 name: each gain's shortest exact decimal, ';'-separated.
+
+    ``float(part)`` gives back the gain bit for bit, so near-equal gains never share a name.
+    """
+    parts = []
+    for g in gains:
+        g = float(g)
+        if not math.isfinite(g):
+            raise ValueError(f"gains must be finite, got {tuple(gains)}")
+        parts.append(repr(g))
+    return ";".join(parts)
+
+
+def measurement_filename(gains=None, when: _dt.datetime | None = None, uid: str | None = None) -> str:
+    """A format-2 name: ``<stamp>[_<exact gains>]_lg<uid>_positions.csv``."""
     when = when or _dt.datetime.now()
+    uid = uid or secrets.token_hex(6)
     stamp = when.strftime("%Y%m%d_%H%M%S")
-    return f"{stamp}_{gains_key(gains)}_positions.csv" if gains is not None else f"{stamp}_positions.csv"
+    middle = f"_{exact_gains_key(gains)}" if gains is not None else ""
+    return f"{stamp}{middle}_lg{uid}_positions.csv"
 
 
 def parse_filename(path: str | Path) -> tuple[str, tuple[float, float, float] | None]:
-    """(timestamp, gains or None) from a measurement file name; MeasurementError otherwise."""
+    """(timestamp, gains or None) from a measurement file name; MeasurementError otherwise.
+
+    Gains are strict decimal numbers (digits, one point, an optional exponent): ``2_66.97``,
+    full-width digits, ``nan`` and ``inf`` are refused.
+    """
+    return _parse_name(path)[:2]
+
+
+def is_leglib_name(path: str | Path) -> bool:
+    """True for a format-2 name (with the ``lg`` part): it must have a committed sidecar."""
+    m = NAME_RE.match(Path(path).name)
+    return bool(m and m.group("uid"))
+
+
+def _parse_name(path):
     name = Path(path).name
     m = NAME_RE.match(name)
     if not m:
@@ -54,15 +153,21 @@ def parse_filename(path: str | Path) -> tuple[str, tuple[float, float, float] | 
     gains = None
     if m.group("gains") is not None:
         parts = m.group("gains").split(";")
-        try:
-            gains = tuple(float(p) for p in parts)
-        except ValueError:
-            gains = None
-        if gains is None or len(gains) != 3 or not all(math.isfinite(g) for g in gains):
-            raise MeasurementError(f"{path}: cannot parse gains {m.group('gains')!r} from file name "
-                                   f"(expected three numbers separated by ';')")
-    return m.group("stamp"), gains
+        if len(parts) != 3 or not all(NUMBER_RE.match(p) for p in parts):
+            raise MeasurementError(f"{path}: cannot parse gains {_excerpt(m.group('gains'))} from file name "
+                                   f"(expected three decimal numbers separated by ';')")
+        gains = tuple(float(p) for p in parts)
+        if not all(math.isfinite(g) for g in gains):
+            raise MeasurementError(f"{path}: gains in the file name are not finite")
+    return m.group("stamp"), gains, m.group("uid")
 
+
+def sidecar_path(path: str | Path) -> Path:
+    """The sidecar of a measurement CSV: ``<stem>.json``."""
+    return Path(path).with_suffix(".json")
+
+
+# -- provenance of the code ---------------------------------------------------------------
 
 def _git_commit() -> str | None:
     try:
@@ -84,79 +189,222 @@ def provenance() -> dict:
     return {"leglib_version": __version__, "git_commit": _COMMIT}
 
 
-def _atomic_write(path: Path, write) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name, suffix=".tmp")
+# -- writing -----------------------------------------------------------------------------
+
+def _write_temp(directory: Path, final_name: str, data: bytes) -> Path:
+    """``data`` in a new hidden temporary file next to ``final_name``, flushed to disk.
+
+    Created with mode 0666 less the umask (``tempfile.mkstemp`` would force 0600).
+    """
+    for _ in range(100):
+        tmp = directory / f".{final_name}.{secrets.token_hex(4)}.tmp"
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            continue
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(data)
+                fh.flush()
+                os.fsync(fh.fileno())
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+        return tmp
+    raise FileExistsError(f"{directory}: cannot create a temporary file for {final_name}")
+
+
+def _commit(tmp: Path, path: Path) -> None:
+    """Give the complete ``tmp`` its final name; fails if the name exists (never overwrites)."""
     try:
-        with os.fdopen(fd, "w") as fh:
-            write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        # link, not rename: fails if the target exists, so nothing is ever overwritten
         os.link(tmp, path)
     finally:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
+
+
+def _fsync_dir(directory: Path) -> None:
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def write_bytes_atomic(path: str | Path, data: bytes, overwrite: bool = False) -> Path:
+    """Write ``data`` to ``path`` via a temporary file: the name shows a complete file or
+    none. ``overwrite=False`` raises FileExistsError rather than replace a file."""
+    path = Path(path)
+    tmp = _write_temp(path.parent, path.name, data)
+    try:
+        if overwrite:
+            os.replace(tmp, path)
+        else:
+            _commit(tmp, path)
+    except FileExistsError:
+        raise FileExistsError(f"{path}: exists; not overwriting") from None
+    finally:
+        tmp.unlink(missing_ok=True)
+    _fsync_dir(path.parent)
+    return path
+
+
+def _csv_bytes(data: np.ndarray) -> bytes:
+    return "".join(f"{a:.6f},{b:.6f},{c:.6f}\n" for a, b, c in data).encode("ascii")
 
 
 def write_measurement(out_dir: str | Path, t, angle1_deg, angle2_deg, meta: dict,
                       gains=None, when: _dt.datetime | None = None) -> Path:
-    """Write one measurement (CSV + JSON sidecar) atomically; returns the CSV path.
+    """Write one measurement (sidecar, then the CSV as the commit); returns the CSV path.
 
-    Raises FileExistsError rather than overwrite a finished measurement.
+    Parameters
+    ----------
+    out_dir : directory (created if missing)
+    t : (n,) sample times [s], increasing
+    angle1_deg, angle2_deg : (n,) absolute joint angles q1, q2 [deg]
+    meta : extra sidecar fields (JSON-serializable); ``completed`` must be a bool if given
+    gains : (pos_gain, vel_gain, vel_integrator_gain) or None
+    when : time stamp of the name (default now)
+
+    The name carries the exact gains and a random part, so it never collides with another
+    writer's; an interruption at any point leaves either the whole measurement or an
+    uncommitted sidecar/temporary file that readers ignore (see the module notes).
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t, a1, a2 = (np.asarray(v, dtype=float) for v in (t, angle1_deg, angle2_deg))
-    if not (t.shape == a1.shape == a2.shape) or t.ndim != 1:
-        raise ValueError(f"write_measurement: t, angle1, angle2 must be 1-D of equal length, "
+    if not (t.shape == a1.shape == a2.shape) or t.ndim != 1 or t.size < 2:
+        raise ValueError(f"write_measurement: t, angle1, angle2 must be 1-D of equal length >= 2, "
                          f"got {t.shape}, {a1.shape}, {a2.shape}")
-    path = out_dir / measurement_filename(gains, when)
-    if path.exists() or path.with_suffix(".json").exists():
-        raise FileExistsError(f"{path}: a measurement with this name exists; not overwriting")
     data = np.column_stack([t, a1, a2])
-    sidecar = {"columns": ["time [s]", "q1 [deg]", "q2 [deg]"], "angles": "absolute",
-               "gains": None if gains is None else [float(g) for g in gains],
-               "samples": int(t.size), **provenance(), **meta}
-    _atomic_write(path, lambda fh: np.savetxt(fh, data, fmt="%.6f", delimiter=","))
-    _atomic_write(path.with_suffix(".json"),
-                  lambda fh: json.dump(sidecar, fh, indent=2, sort_keys=True, default=_json_default))
-    return path
+    if not np.all(np.isfinite(data)) or np.any(np.abs(data[:, 1:]) > ANGLE_LIMIT_DEG):
+        raise ValueError(f"write_measurement: angles must be finite and within +-{ANGLE_LIMIT_DEG} deg")
+    if "completed" in meta and not isinstance(meta["completed"], (bool, np.bool_)):
+        raise ValueError(f"write_measurement: meta['completed'] must be a bool, got {meta['completed']!r}")
+    body = _csv_bytes(data)
+    for _ in range(100):
+        path = out_dir / measurement_filename(gains, when)
+        side = sidecar_path(path)
+        sidecar = {**provenance(), **meta,
+                   "format": FORMAT, "columns": COLUMNS, "angles": "absolute",
+                   "gains": None if gains is None else [float(g) for g in gains],
+                   "samples": int(t.size), "csv_sha256": hashlib.sha256(body).hexdigest()}
+        text = json.dumps(sidecar, indent=2, sort_keys=True, default=_json_default).encode()
+        try:
+            write_bytes_atomic(side, text)
+        except FileExistsError:
+            continue  # the random part collided: draw another
+        write_bytes_atomic(path, body)  # the commit
+        return path
+    raise FileExistsError(f"{out_dir}: could not find a free measurement name")
 
 
 def write_table(path: str | Path, data) -> Path:
     """Write a numeric table as CSV atomically (never overwriting)."""
-    path = Path(path)
-    if path.exists():
-        raise FileExistsError(f"{path}: exists; not overwriting")
-    _atomic_write(path, lambda fh: np.savetxt(fh, np.asarray(data, dtype=float), fmt="%.6f", delimiter=","))
-    return path
+    data = np.asarray(data, dtype=float)
+    body = "".join(",".join(f"{v:.6f}" for v in row) + "\n" for row in np.atleast_2d(data)).encode("ascii")
+    return write_bytes_atomic(path, body)
 
 
-def _read_rows(path: Path, columns: int, names: str = "", increasing_first: bool = False) -> np.ndarray:
-    """Parse a numeric CSV strictly: MeasurementError naming file and line for a wrong
-    column count, a non-number, NaN or infinity, or (``increasing_first``) a first column
-    that does not increase."""
+# -- reading -----------------------------------------------------------------------------
+
+def _read_regular(path: Path, limit: int, what: str) -> bytes:
+    """The bytes of ``path`` if it is a regular file (symlinks followed) of at most ``limit``
+    bytes; MeasurementError otherwise. Never blocks on a FIFO or reads a device."""
     try:
-        text = path.read_text()
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
     except FileNotFoundError:
-        raise MeasurementError(f"{path}: file not found") from None
-    except UnicodeDecodeError:
-        raise MeasurementError(f"{path}: not a text file") from None
+        raise MeasurementError(f"{path}: {what} not found") from None
+    except OSError as exc:
+        reason = {errno.ELOOP: "a symlink loop", errno.EISDIR: "a directory",
+                  errno.EACCES: "not readable (permission denied)"}.get(exc.errno, exc.strerror)
+        raise MeasurementError(f"{path}: cannot open {what}: {reason}") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            kind = ("a directory" if stat.S_ISDIR(st.st_mode) else "a FIFO" if stat.S_ISFIFO(st.st_mode)
+                    else "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode)
+                    else "a socket" if stat.S_ISSOCK(st.st_mode) else "not a regular file")
+            raise MeasurementError(f"{path}: {what} is {kind}, not a regular file")
+        if st.st_size > limit:
+            raise MeasurementError(f"{path}: {what} is {st.st_size} bytes, more than the {limit} "
+                                   f"a measurement may have")
+        chunks, total = [], 0
+        while True:
+            chunk = os.read(fd, 1 << 20)
+            if not chunk:
+                break
+            total += len(chunk)
+            if total > limit:
+                raise MeasurementError(f"{path}: {what} grew beyond {limit} bytes while reading")
+            chunks.append(chunk)
+        return b"".join(chunks)
+    except OSError as exc:
+        raise MeasurementError(f"{path}: cannot read {what}: {exc.strerror}") from None
+    finally:
+        os.close(fd)
+
+
+def _decode(path: Path, raw: bytes, what: str) -> str:
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise MeasurementError(f"{path}:{line}: {what} is not UTF-8 text "
+                               f"(byte 0x{raw[exc.start]:02x} at offset {exc.start})") from None
+
+
+def _row_error(path: Path, lineno: int, line: str, columns: int, names: str) -> MeasurementError:
+    if len(line) > MAX_LINE_CHARS:
+        return MeasurementError(f"{path}:{lineno}: line of {len(line)} characters (at most "
+                                f"{MAX_LINE_CHARS}): {_excerpt(line)}")
+    parts = line.split(",")
+    if len(parts) != columns:
+        return MeasurementError(f"{path}:{lineno}: expected {columns} comma-separated columns {names}, "
+                                f"got {len(parts)}: {_excerpt(line)}")
+    for i, p in enumerate(parts, start=1):
+        if not NUMBER_RE.match(p.strip(" \t\r")):
+            low = p.strip().lower()
+            kind = "NaN or infinite value" if low.lstrip("+-") in ("nan", "inf", "infinity") else "not a number"
+            return MeasurementError(f"{path}:{lineno}: column {i}: {kind} in {_excerpt(line)}")
+    return MeasurementError(f"{path}:{lineno}: cannot read {_excerpt(line)}")
+
+
+def _parse_rows(path: Path, text: str, columns: int = 3, names: str = "",
+                increasing_first: bool = False, angle_columns=()) -> np.ndarray:
+    """Parse numeric CSV text strictly: MeasurementError naming file and line for a wrong
+    column count, a non-number (strict ASCII decimal syntax), NaN or infinity, an angle
+    beyond ANGLE_LIMIT_DEG, or (``increasing_first``) a first column that does not increase."""
+    row_re = _ROW_RE if columns == 3 else None
     rows = []
-    for lineno, line in enumerate(text.splitlines(), start=1):
+    prev = -math.inf
+    for lineno, line in enumerate(text.split("\n"), start=1):
         if not line.strip():
             continue
-        parts = line.split(",")
-        if len(parts) != columns:
-            raise MeasurementError(f"{path}:{lineno}: expected {columns} comma-separated columns {names}, "
-                                   f"got {len(parts)}: {line!r}")
-        try:
+        m = row_re.match(line) if row_re is not None and len(line) <= MAX_LINE_CHARS else None
+        if m is None:
+            parts = line.split(",")
+            if (row_re is not None or len(line) > MAX_LINE_CHARS or len(parts) != columns
+                    or not all(NUMBER_RE.match(p.strip(" \t\r")) for p in parts)):
+                raise _row_error(path, lineno, line, columns, names)
             vals = [float(p) for p in parts]
-        except ValueError:
-            raise MeasurementError(f"{path}:{lineno}: not a number in {line!r}") from None
-        if not all(math.isfinite(v) for v in vals):
-            raise MeasurementError(f"{path}:{lineno}: NaN or infinite value in {line!r}")
-        if increasing_first and rows and vals[0] <= rows[-1][0]:
-            raise MeasurementError(f"{path}:{lineno}: time {vals[0]} does not increase (previous {rows[-1][0]})")
+        else:
+            vals = [float(x) for x in m.groups()]
+        for i, v in enumerate(vals, start=1):
+            if not math.isfinite(v):
+                raise MeasurementError(f"{path}:{lineno}: column {i}: NaN or infinite value in {_excerpt(line)}")
+        for c in angle_columns:
+            if abs(vals[c]) > ANGLE_LIMIT_DEG:
+                raise MeasurementError(f"{path}:{lineno}: column {c + 1}: angle {vals[c]:g} deg beyond "
+                                       f"+-{ANGLE_LIMIT_DEG:g} deg")
+        if increasing_first:
+            if not vals[0] > prev:
+                raise MeasurementError(f"{path}:{lineno}: time {vals[0]} does not increase (previous {prev})")
+            prev = vals[0]
         rows.append(vals)
     if not rows:
         raise MeasurementError(f"{path}: no data rows")
@@ -165,15 +413,83 @@ def _read_rows(path: Path, columns: int, names: str = "", increasing_first: bool
 
 def read_table(path: str | Path, columns: int) -> np.ndarray:
     """Read a numeric CSV with ``columns`` columns; MeasurementError naming file and line."""
-    return _read_rows(Path(path), columns)
+    path = Path(path)
+    text = _decode(path, _read_regular(path, MAX_CSV_BYTES, "file"), "file")
+    return _parse_rows(path, text, columns)
 
 
 def _json_default(o):
     if isinstance(o, (np.floating, np.integer)):
         return o.item()
+    if isinstance(o, np.bool_):
+        return bool(o)
     if isinstance(o, np.ndarray):
         return o.tolist()
     raise TypeError(f"not JSON serializable: {type(o).__name__}")
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _check_sidecar(side: Path, meta, csv: Path, raw: bytes, n: int, name_gains, exact_name: bool) -> tuple | None:
+    """Check a sidecar's types and its agreement with the CSV and its name; returns its gains."""
+    if not isinstance(meta, dict):
+        raise MeasurementError(f"{side}: sidecar must be a JSON object, got {type(meta).__name__}")
+
+    def bad(fieldname, expected):
+        return MeasurementError(f"{side}: field {fieldname!r} must be {expected}, got "
+                                f"{_excerpt(json.dumps(meta[fieldname]))}")
+
+    fmt = meta.get("format", 1)
+    if not isinstance(fmt, int) or isinstance(fmt, bool) or not 1 <= fmt <= FORMAT:
+        raise bad("format", f"an integer 1..{FORMAT}")
+    if "columns" in meta and meta["columns"] != COLUMNS:
+        raise bad("columns", repr(COLUMNS))
+    if "angles" in meta and meta["angles"] not in ("absolute", "relative"):
+        raise bad("angles", "'absolute' or 'relative'")
+    if "completed" in meta and not isinstance(meta["completed"], bool):
+        raise bad("completed", "true or false (a JSON boolean)")
+    for key in ("step_turns", "sample_rate_hz", "period_s", "rate_hz"):
+        if key in meta and meta[key] is not None and not _is_number(meta[key]):
+            raise bad(key, "a finite number")
+    if "abort_reason" in meta and not (meta["abort_reason"] is None or isinstance(meta["abort_reason"], str)):
+        raise bad("abort_reason", "a string or null")
+    if "samples" in meta:
+        s = meta["samples"]
+        if not isinstance(s, int) or isinstance(s, bool):
+            raise bad("samples", "an integer")
+        if s != n:
+            raise MeasurementError(f"{csv}: {n} samples, but its sidecar {side.name} says {s} "
+                                   f"(a cut or extended file)")
+    elif fmt >= 2:
+        raise MeasurementError(f"{side}: field 'samples' missing")
+    if "csv_sha256" in meta:
+        h = meta["csv_sha256"]
+        if not isinstance(h, str) or not re.fullmatch(r"[0-9a-f]{64}", h):
+            raise bad("csv_sha256", "64 hexadecimal digits")
+        if hashlib.sha256(raw).hexdigest() != h:
+            raise MeasurementError(f"{csv}: contents differ from those committed with its sidecar "
+                                   f"{side.name} (SHA-256 mismatch): the file was changed after writing")
+    elif fmt >= 2:
+        raise MeasurementError(f"{side}: field 'csv_sha256' missing")
+    gains = None
+    if meta.get("gains") is not None:
+        g = meta["gains"]
+        if not (isinstance(g, list) and len(g) == 3 and all(_is_number(x) for x in g)):
+            raise bad("gains", "a list of three finite numbers or null")
+        gains = tuple(float(x) for x in g)
+        if name_gains is not None:
+            same = (gains == name_gains if exact_name
+                    else all(abs(a - b) <= 0.0005 + 1e-9 for a, b in zip(gains, name_gains)))
+            if not same:
+                raise MeasurementError(f"{csv}: gains in the name {name_gains} differ from the sidecar's "
+                                       f"{gains} ({side.name}, field 'gains')")
+    elif "gains" in meta and name_gains is not None:
+        raise MeasurementError(f"{side}: field 'gains' is null, but the file name gives {name_gains}")
+    elif fmt >= 2 and name_gains is not None and "gains" not in meta:
+        raise MeasurementError(f"{side}: field 'gains' missing")
+    return gains
 
 
 @dataclass
@@ -196,33 +512,323 @@ class Measurement:
     @property
     def stable(self) -> bool:
         """False when the experiment aborted (unstable); thesis files count as completed."""
-        return bool(self.meta.get("completed", True))
+        return self.meta.get("completed", True) is True
 
 
 def read_measurement(path: str | Path) -> Measurement:
-    """Read and validate a measurement CSV (and its sidecar, if any).
+    """Read and validate a measurement CSV and its sidecar.
 
-    Raises MeasurementError naming the file and line for: an unparseable file name, a row
-    without exactly three numbers, NaN or infinite values, non-increasing time, fewer than
-    two rows, or a sidecar that is not JSON.
+    Raises MeasurementError naming the file, line and field for: an unparseable file name;
+    anything but a regular UTF-8 file of bounded size; a row without exactly three strict
+    decimal numbers, NaN or infinite values, angles beyond ANGLE_LIMIT_DEG, non-increasing
+    time, fewer than two rows; a sidecar that is not a JSON object, has fields of the wrong
+    type, a sample count or hash that does not match the CSV, or gains that differ from the
+    name's; a format-2 file without its sidecar; a sidecar-less thesis-named file whose
+    angles do not start at zero.
     """
     path = Path(path)
-    _, name_gains = parse_filename(path)
-    data = _read_rows(path, 3, "(time, angle1, angle2)", increasing_first=True)
+    _, name_gains, uid = _parse_name(path)
+    raw = _read_regular(path, MAX_CSV_BYTES, "measurement file")
+    text = _decode(path, raw, "measurement file")
+    data = _parse_rows(path, text, 3, "(time, angle1, angle2)", increasing_first=True, angle_columns=(1, 2))
     if len(data) < 2:
         raise MeasurementError(f"{path}: fewer than two data rows")
-    meta = {}
-    side = path.with_suffix(".json")
-    if side.exists():
+    side = sidecar_path(path)
+    if os.path.lexists(side):
+        side_raw = _read_regular(side, MAX_SIDECAR_BYTES, "sidecar")
         try:
-            meta = json.loads(side.read_text())
+            meta = json.loads(_decode(side, side_raw, "sidecar"))
         except json.JSONDecodeError as exc:
-            raise MeasurementError(f"{side}: sidecar is not valid JSON: {exc}") from None
-    gains = tuple(meta["gains"]) if meta.get("gains") else name_gains
+            raise MeasurementError(f"{side}:{exc.lineno}: sidecar is not valid JSON: {exc.msg}") from None
+        except RecursionError:
+            raise MeasurementError(f"{side}: sidecar is nested too deeply") from None
+        gains = _check_sidecar(side, meta, path, raw, len(data), name_gains, exact_name=uid is not None)
+        gains = gains if gains is not None else name_gains
+    else:
+        if uid is not None:
+            raise MeasurementError(f"{path}: sidecar {side.name} missing: a leglib measurement without "
+                                   f"its sidecar is incomplete or damaged (re-measure it)")
+        start = max(abs(data[0, 1]), abs(data[0, 2]))
+        if start > RELATIVE_START_DEG:
+            raise MeasurementError(
+                f"{path}:1: no sidecar, so a thesis file with angles relative to the start, but the "
+                f"first row is {data[0, 1]:g}, {data[0, 2]:g} deg: absolute angles without their "
+                f"sidecar (an interrupted leglib write?); re-measure it")
+        meta, gains = {}, name_gains
     return Measurement(path=path, t=data[:, 0], angle1=data[:, 1], angle2=data[:, 2],
                        gains=gains, meta=meta)
 
 
+def _directory(directory: str | Path) -> Path:
+    if not isinstance(directory, (str, os.PathLike)):
+        raise TypeError(f"expected a directory path, got {type(directory).__name__}")
+    d = Path(directory)
+    if not d.exists():
+        raise MeasurementError(f"{d}: no such directory")
+    if not d.is_dir():
+        raise MeasurementError(f"{d}: not a directory")
+    return d
+
+
 def list_measurements(directory: str | Path) -> list[Path]:
-    """Measurement CSVs (``*_positions.csv``) in ``directory``, sorted by name."""
-    return sorted(Path(directory).glob("*_positions.csv"))
+    """Measurement CSVs (``*_positions.csv``, not hidden) in ``directory``, sorted by name.
+
+    MeasurementError if ``directory`` does not exist or is not a directory. Uncommitted
+    writes (sidecars without a CSV, temporary files) are not listed (:func:`find_uncommitted`).
+    """
+    d = _directory(directory)
+    return sorted(p for p in d.glob("*_positions.csv") if not p.name.startswith("."))
+
+
+@dataclass
+class DirectoryRead:
+    """What :func:`read_measurements` found: ``measurements`` read, and ``problems``,
+    a list of (path, message) of the files that could not be read (``strict=False``)."""
+
+    measurements: list
+    problems: list
+
+
+def read_measurements(paths_or_dir, strict: bool = True) -> DirectoryRead:
+    """Read every measurement of a directory (or a list of paths).
+
+    ``strict=True`` raises the first file's MeasurementError; ``strict=False`` skips bad
+    files, lists them in ``problems`` and warns with their count, never silently.
+    """
+    if isinstance(paths_or_dir, (str, os.PathLike)):
+        paths = list_measurements(paths_or_dir)
+    else:
+        paths = [Path(p) for p in paths_or_dir]
+    out, problems = [], []
+    for p in paths:
+        try:
+            out.append(read_measurement(p))
+        except MeasurementError as exc:
+            if strict:
+                raise
+            problems.append((p, str(exc)))
+    if problems:
+        warnings.warn(f"{len(problems)} of {len(paths)} measurement files skipped: "
+                      + "; ".join(m for _, m in problems[:3]) + (" ..." if len(problems) > 3 else ""),
+                      stacklevel=2)
+    return DirectoryRead(out, problems)
+
+
+def find_uncommitted(directory: str | Path) -> list[Path]:
+    """Leftovers of interrupted format-2 writes in ``directory``: sidecars whose CSV never
+    appeared and hidden temporary files. (A concurrent writer's in-flight files look the
+    same: hold the point's :func:`claim` before removing them.)"""
+    d = _directory(directory)
+    found = [p for p in d.glob("*_positions.json")
+             if _UID_RE.search(p.name) and not os.path.lexists(p.with_suffix(".csv"))]
+    found += [p for p in d.glob(".*.tmp") if "_positions." in p.name]
+    return sorted(found)
+
+
+def gains_of_uncommitted(path: Path) -> tuple | None:
+    """The gains a leftover file (sidecar or temporary file) belonged to, from its name."""
+    name = path.name
+    if name.startswith(".") and name.endswith(".tmp"):
+        name = name[1:].rsplit(".", 2)[0]
+    name = name.replace("_positions.json", "_positions.csv")
+    try:
+        return _parse_name(name)[1]
+    except MeasurementError:
+        return None
+
+
+def set_aside(path: Path, directory: Path | None = None) -> Path:
+    """Move ``path`` (and its sidecar) into ``<directory>/incomplete/``; returns the new path.
+    Nothing is deleted: a damaged or unfinished file stays there for inspection."""
+    path = Path(path)
+    target_dir = (directory or path.parent) / INCOMPLETE_DIR
+    target_dir.mkdir(exist_ok=True)
+    moved = None
+    for p in (path, sidecar_path(path)) if path.suffix == ".csv" else (path,):
+        if os.path.lexists(p):
+            dest = target_dir / p.name.lstrip(".")
+            if os.path.lexists(dest):
+                dest = target_dir / f"{dest.stem}.{secrets.token_hex(3)}{dest.suffix}"
+            os.replace(p, dest)
+            moved = moved or dest
+    return moved or target_dir / path.name
+
+
+# -- claims: one writer per point --------------------------------------------------------
+
+class Claim:
+    """An exclusive claim on one grid point of a directory (an flock on a lock file):
+    held while the point is measured and written, released when the process ends, so a
+    crashed writer never blocks the point."""
+
+    def __init__(self, fd: int):
+        self._fd = fd
+
+    def release(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+
+def claim(directory: str | Path, gains, wait: bool = False) -> Claim | None:
+    """Claim the point ``gains`` in ``directory``; None if another process holds it
+    (``wait=True`` blocks until it is released)."""
+    locks = Path(directory) / ".claims"
+    locks.mkdir(exist_ok=True)
+    key = hashlib.sha1(exact_gains_key(gains).encode()).hexdigest()[:20]
+    fd = os.open(locks / f"{key}.lock", os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+    except BlockingIOError:
+        os.close(fd)
+        return None
+    except BaseException:
+        os.close(fd)
+        raise
+    return Claim(fd)
+
+
+def committed_gains(directory: str | Path) -> set:
+    """Exact gains of every committed format-2 measurement (from names only: fast)."""
+    out = set()
+    for p in list_measurements(directory):
+        m = NAME_RE.match(p.name)
+        if m and m.group("uid") and m.group("gains"):
+            try:
+                out.add(_parse_name(p)[1])
+            except MeasurementError:
+                pass
+    return out
+
+
+# -- provenance of a directory ------------------------------------------------------------
+
+# the fields of Device.describe() that define "the same leg": what was measured on
+DEVICE_IDENTITY = ("backend", "serial_number", "firmware", "twin_seed", "twin_plant_values", "twin_noise")
+
+
+def sweep_record(device: dict, **experiment) -> dict:
+    """The provenance of a sweep: the identity fields of ``Device.describe()`` and the
+    experiment's settings (step, duration, sample period, ...)."""
+    dev = {k: device[k] for k in DEVICE_IDENTITY if k in device}
+    if isinstance(dev.get("twin_plant_values"), dict):  # values only, not their source notes
+        dev["twin_plant_values"] = {k: v for k, v in dev["twin_plant_values"].items() if not k.startswith("_")}
+    return json.loads(json.dumps({"device": dev, "experiment": experiment}, default=_json_default))
+
+
+def _differences(theirs, ours, prefix=""):
+    if isinstance(theirs, dict) and isinstance(ours, dict):
+        out = []
+        for k in sorted(set(theirs) | set(ours)):
+            if k in theirs and k in ours:
+                out += _differences(theirs[k], ours[k], f"{prefix}{k}.")
+        return out
+    if isinstance(theirs, float) or isinstance(ours, float):
+        if _is_number(theirs) and _is_number(ours) and math.isclose(theirs, ours, rel_tol=1e-9, abs_tol=1e-12):
+            return []
+    return [] if theirs == ours else [(prefix.rstrip("."), theirs, ours)]
+
+
+def check_provenance(directory: str | Path, record: dict, write: bool = False) -> None:
+    """Refuse a directory measured on another leg or with another experiment.
+
+    ``record`` is :func:`sweep_record`'s (or ``{"device": Device.describe()}``): fields
+    present on both sides are compared. The directory's record is its ``sweep.json``;
+    without one (older directories) the sidecars of its measurements are compared, and a
+    thesis file (no sidecar) counts as measured on the real leg (backend "usb"). With
+    ``write=True`` the record is stored when the directory has none. Raises
+    ProvenanceError naming the file and every differing field.
+    """
+    d = Path(directory)
+    rec_path = d / PROVENANCE_FILE
+    ours = sweep_record(record.get("device", {}), **record.get("experiment", {}))
+    if os.path.lexists(rec_path):
+        raw = _read_regular(rec_path, MAX_SIDECAR_BYTES, "provenance record")
+        try:
+            theirs = json.loads(_decode(rec_path, raw, "provenance record"))
+        except json.JSONDecodeError as exc:
+            raise MeasurementError(f"{rec_path}:{exc.lineno}: not valid JSON: {exc.msg}") from None
+        if not isinstance(theirs, dict):
+            raise MeasurementError(f"{rec_path}: must be a JSON object")
+        for tmp in d.glob(f".{PROVENANCE_FILE}.*.tmp"):  # an interrupted or losing writer's copy
+            tmp.unlink(missing_ok=True)
+        diffs = _differences({k: theirs.get(k, {}) for k in ("device", "experiment")}, ours)
+        where = rec_path
+    else:
+        diffs, where = [], None
+        if d.is_dir():
+            for p in list_measurements(d):
+                side = sidecar_path(p)
+                if not side.is_file():
+                    try:
+                        read_measurement(p)
+                    except MeasurementError:
+                        continue  # not a thesis file (an orphan, damaged): set aside by a sweep
+                    if not is_leglib_name(p):  # a thesis file: measured on the real leg
+                        diffs = _differences({"device": {"backend": "usb"}}, ours)
+                        if diffs:
+                            where = p
+                            break
+                    continue
+                try:
+                    meta = json.loads(side.read_text())
+                except (OSError, ValueError):
+                    continue
+                if not isinstance(meta, dict):
+                    continue
+                theirs = {"device": sweep_record(meta)["device"],
+                          "experiment": ({"step": meta["step_turns"]} if "step_turns" in meta else {})}
+                diffs = _differences(theirs, ours)
+                if diffs:
+                    where = side
+                    break
+        if not diffs and write:
+            d.mkdir(parents=True, exist_ok=True)
+            body = json.dumps({**ours, **provenance()}, indent=2, sort_keys=True).encode()
+            try:
+                write_bytes_atomic(rec_path, body)
+            except (FileExistsError, FileNotFoundError):  # another writer stored one first
+                pass
+            return check_provenance(directory, record, write=False)  # compares, tidies
+    if diffs:
+        text = "; ".join(f"{k}: {_short_json(a)} there, {_short_json(b)} now" for k, a, b in diffs[:6])
+        raise ProvenanceError(f"{where}: {d} was measured on another leg or with another experiment "
+                              f"({text}); measure into another directory")
+
+
+def _short_json(v) -> str:
+    s = json.dumps(v, default=str)
+    return s if len(s) <= EXCERPT else s[:EXCERPT] + "..."
+
+
+def check_result_provenance(result_path: str | Path, device: dict, ignore=("twin_seed",)) -> None:
+    """Refuse a cached result (a JSON file whose ``source`` names the measurement it was
+    derived from, e.g. notebook 02's identified leg) that comes from another leg.
+
+    The measurement's sidecar is compared with ``device`` (identity fields of
+    ``Device.describe()``, or the subset known before connecting) on the fields both have,
+    except ``ignore`` (by default the twin's noise seed: another seed is the same leg).
+    A result without a readable source is reported with a warning, not trusted silently.
+    """
+    result_path = Path(result_path)
+    raw = _read_regular(result_path, MAX_SIDECAR_BYTES, "result file")
+    try:
+        doc = json.loads(_decode(result_path, raw, "result file"))
+    except json.JSONDecodeError as exc:
+        raise MeasurementError(f"{result_path}:{exc.lineno}: not valid JSON: {exc.msg}") from None
+    source = doc.get("source") if isinstance(doc, dict) else None
+    side = sidecar_path(source) if isinstance(source, str) else None
+    if side is None or not side.is_file():
+        warnings.warn(f"{result_path}: its source measurement {source!r} is not available; "
+                      f"cannot check that it comes from this leg", stacklevel=2)
+        return
+    meta = json.loads(_decode(side, _read_regular(side, MAX_SIDECAR_BYTES, "sidecar"), "sidecar"))
+    if not isinstance(meta, dict):
+        raise MeasurementError(f"{side}: sidecar must be a JSON object, got {type(meta).__name__}")
+    theirs = {k: v for k, v in sweep_record(meta)["device"].items() if k not in ignore}
+    ours = {k: v for k, v in sweep_record(device)["device"].items() if k not in ignore}
+    diffs = _differences(theirs, ours)
+    if diffs:
+        text = "; ".join(f"{k}: {_short_json(a)} there, {_short_json(b)} now" for k, a, b in diffs[:6])
+        raise ProvenanceError(f"{result_path}: derived from {source}, measured on another leg ({text}); "
+                              f"derive it again for this leg or point to its own result")

@@ -171,10 +171,14 @@ class GainMap:
         return cls(identify_many(responses, method, workers))
 
     @classmethod
-    def from_measurements(cls, paths_or_dir, leg="thesis", method: str = "fit", progress: bool = False) -> "GainMap":
+    def from_measurements(cls, paths_or_dir, leg="thesis", method: str = "fit", progress: bool = False,
+                          strict: bool = True) -> "GainMap":
         """From measurement files (a directory or a list of ``*_positions.csv``).
 
-        ``leg`` (name or LegParams) gives the kinematics for the foot height.
+        ``leg`` (name or LegParams) gives the kinematics for the foot height. ``strict=False``
+        skips unreadable files and warns naming them (:func:`leglib.dataio.read_measurements`).
+        Two files with the same gains are an error naming both: a map cell holds one
+        measurement.
         """
         from tqdm.auto import tqdm
 
@@ -182,17 +186,20 @@ class GainMap:
         from .params import load_leg
 
         leg = load_leg(leg) if isinstance(leg, (str, Path)) else leg
-        if isinstance(paths_or_dir, (str, Path)) and Path(paths_or_dir).is_dir():
-            paths = dataio.list_measurements(paths_or_dir)
-        else:
-            paths = [Path(p) for p in paths_or_dir]
-        if not paths:
-            raise ValueError(f"no measurement files in {paths_or_dir}")
-        points = []
-        for p in tqdm(paths, desc="identify", unit="file", disable=not progress):
-            m = dataio.read_measurement(p)
+        measurements = dataio.read_measurements(paths_or_dir, strict=strict).measurements
+        if not measurements:
+            raise ValueError(f"no readable measurement files in {paths_or_dir}")
+        seen = {}
+        for m in measurements:
             if m.gains is None:
-                raise dataio.MeasurementError(f"{p}: no gains in the file name or sidecar")
+                raise dataio.MeasurementError(f"{m.path}: no gains in the file name or sidecar")
+            key = tuple(np.round(np.asarray(m.gains, dtype=float), 6))
+            if key in seen:
+                raise dataio.MeasurementError(f"{seen[key]} and {m.path} both hold gains {m.gains}: "
+                                              f"a map cell holds one measurement; move one away")
+            seen[key] = m.path
+        points = []
+        for m in tqdm(measurements, desc="identify", unit="file", disable=not progress):
             points.append(identify_response(StepResponse.from_measurement(m, leg), method))
         return cls(points)
 

@@ -1,8 +1,10 @@
 """Small helpers that every notebook uses: parameter checks, metrics, figure output.
 
 Notebooks keep a ``parameters`` cell of plain typed values; the first cell after it calls
-:func:`require` for each, so a bad value stops the notebook at once with a message that
-names the parameter.
+:func:`require` (and :func:`require_seed`, :func:`require_order`,
+:func:`require_writable_dir`, :func:`require_writable_file`, :func:`require_readable_file`)
+for every parameter, before any experiment runs, so a bad value stops the notebook at once
+with a message that names the parameter.
 """
 
 from __future__ import annotations
@@ -10,7 +12,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -53,6 +54,73 @@ def require(name: str, value: Any, kind: type | tuple, *, choices: Iterable | No
     return value
 
 
+SEED_MAX = 2**32 - 1  # numpy's SeedSequence accepts 0 .. 2**32 - 1 for a plain int seed
+
+
+def require_seed(name: str, value: Any) -> int:
+    """Check a random seed: an int in 0 .. 2**32 - 1 (numpy refuses negative seeds)."""
+    return require(name, value, int, low=0, high=SEED_MAX)
+
+
+def require_order(low_name: str, low_value: float, high_name: str, high_value: float,
+                  allow_equal: bool = False) -> None:
+    """Check that ``low_value`` is below ``high_value`` (or equal, with ``allow_equal``)."""
+    ok = low_value <= high_value if allow_equal else low_value < high_value
+    if not ok:
+        rel = "at most" if allow_equal else "below"
+        raise NotebookParameterError(f"parameter {low_name!r} ({low_value!r}) must be {rel} "
+                                     f"{high_name!r} ({high_value!r})")
+
+
+def _nearest_existing(path: Path) -> Path:
+    p = path
+    while not os.path.lexists(p) and p != p.parent:
+        p = p.parent
+    return p
+
+
+def require_writable_dir(name: str, value: Any) -> Path:
+    """Check that directory ``value`` exists and is writable, or can be created: its nearest
+    existing ancestor is a writable directory. Nothing is created."""
+    require(name, value, str)
+    if not value.strip():
+        raise NotebookParameterError(f"parameter {name!r} must be a directory path, got {value!r}")
+    path = Path(value).expanduser().absolute()
+    base = _nearest_existing(path)
+    if base == path and not path.is_dir():
+        raise NotebookParameterError(f"parameter {name!r}: {value} exists and is not a directory")
+    if not base.is_dir():
+        raise NotebookParameterError(f"parameter {name!r}: {value} cannot be created: {base} is not a directory")
+    if not os.access(base, os.W_OK | os.X_OK):
+        raise NotebookParameterError(f"parameter {name!r}: {value} is not writable ({base} is read-only)")
+    return path
+
+
+def require_writable_file(name: str, value: Any) -> Path:
+    """Check that file ``value`` can be written: not a directory, its directory writable
+    (or creatable)."""
+    require(name, value, str)
+    path = Path(value).expanduser().absolute()
+    if path.is_dir() or not path.name:
+        raise NotebookParameterError(f"parameter {name!r}: {value} is a directory, expected a file path")
+    if os.path.lexists(path) and not path.is_file():
+        raise NotebookParameterError(f"parameter {name!r}: {value} exists and is not a regular file")
+    require_writable_dir(name, str(path.parent))
+    return path
+
+
+def require_readable_file(name: str, value: Any) -> Path:
+    """Check that ``value`` names an existing, readable regular file."""
+    require(name, value, str)
+    path = Path(value).expanduser()
+    if not path.is_file():
+        what = "is not a regular file" if os.path.lexists(path) else "does not exist"
+        raise NotebookParameterError(f"parameter {name!r}: {value} {what}")
+    if not os.access(path, os.R_OK):
+        raise NotebookParameterError(f"parameter {name!r}: {value} is not readable")
+    return path
+
+
 def _jsonable(obj):
     import numpy as np
     if isinstance(obj, dict):
@@ -72,19 +140,13 @@ def _jsonable(obj):
 
 
 def write_json_atomic(path: str | Path, data: dict) -> Path:
-    """Write ``data`` as JSON via a temporary file and rename (never a half-written file)."""
+    """Write ``data`` as JSON via a temporary file and rename (never a half-written file;
+    created with the user's umask)."""
+    from .dataio import write_bytes_atomic
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(_jsonable(data), fh, indent=2, sort_keys=True)
-            fh.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    text = json.dumps(_jsonable(data), indent=2, sort_keys=True) + "\n"
+    return write_bytes_atomic(path, text.encode(), overwrite=True)
 
 
 def write_metrics(path: str | Path, **metrics) -> Path:
@@ -123,6 +185,16 @@ def device_options(backend: str, seed: int, plant: str, payload_mass: float = 0.
         return {}
     from .params import load_plant
     return {"seed": seed, "plant": load_plant(plant, payload_mass=float(payload_mass))}
+
+
+def device_identity(backend: str, options: dict) -> dict:
+    """What a notebook knows of its leg before connecting, in ``Device.describe()``'s terms:
+    the backend and, on the twin, the plant's values (payload included)."""
+    ident = {"backend": backend}
+    plant = options.get("plant")
+    if plant is not None:
+        ident["twin_plant_values"] = {k: v for k, v in vars(plant).items() if k != "source_file"}
+    return ident
 
 
 def use_repo_root() -> Path:

@@ -536,12 +536,15 @@ def step_response(odrv, pos_gain: float, vel_gain: float, vel_integrator_gain: f
 
 @dataclass
 class SweepResult:
-    """What :func:`sweep` did: files written now, points skipped (already measured)."""
+    """What :func:`sweep` did: files written now, points skipped (already measured, here or
+    meanwhile by another writer), unstable points, and files set aside into
+    ``incomplete/`` (damaged or unfinished; their points were measured again)."""
 
     written: list[Path]
     skipped: int
     unstable: int
     out_dir: Path
+    set_aside: list[Path] = field(default_factory=list)
 
     @property
     def paths(self) -> list[Path]:
@@ -563,60 +566,133 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
     """Measure a step response for every (pos_gain, vel_gain, vel_integrator_gain) in
     ``grid`` and write each as a measurement file in ``out_dir``.
 
-    Resumable: points whose file exists are skipped (``resume=False`` refuses a non-empty
-    directory instead). Each file is written atomically when its point is done, so an
-    interruption (exception, lost device, KeyboardInterrupt) loses no finished point; the
-    axes go IDLE whatever happens. On the twin, pending points run in batches of ``chunk``
-    through the compiled kernel; on USB one after the other.
+    Resumable: a point is done when a readable measurement with exactly its gains exists
+    (``resume=False`` refuses a non-empty directory instead). Files that cannot be read
+    (damaged, or the orphan of an interrupted write) and uncommitted leftovers are moved to
+    ``out_dir/incomplete/`` and their points measured again. The directory's provenance
+    (``sweep.json``: the device's identity from ``Device.describe()`` -- backend, serial,
+    firmware, twin seed and plant with its payload -- and step, duration, sample period) is
+    written by the first sweep; resuming with another leg or experiment raises
+    :class:`leglib.dataio.ProvenanceError` before anything is measured.
+
+    Each point is claimed (:func:`leglib.dataio.claim`) while it is measured and written,
+    so two sweeps into one directory share the grid: neither loses nor duplicates a point.
+    Each file is committed when its point is done, so an interruption (exception, lost
+    device, KeyboardInterrupt) loses no finished point; the axes go IDLE whatever happens.
+    On the twin, pending points run in batches of ``chunk`` through the compiled kernel;
+    on USB one after the other.
     """
+    import os
+
     from tqdm.auto import tqdm
 
     dev = as_device(odrv)
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise NotADirectoryError(f"{out_dir}: not a directory (a file is in the way)") from None
+    if not os.access(out_dir, os.W_OK | os.X_OK):
+        raise PermissionError(f"{out_dir}: directory not writable")
     grid = np.atleast_2d(np.asarray(list(grid), dtype=float))
     if grid.shape[1] != 3:
         raise ValueError(f"grid must hold (pos_gain, vel_gain, vel_integrator_gain) triples, "
                          f"got shape {grid.shape}")
     for g in grid:
         _check_gains(dev.config, *g)
-    done = {dataio.gains_key(dataio.parse_filename(p)[1]) for p in dataio.list_measurements(out_dir)
-            if dataio.parse_filename(p)[1] is not None}
-    if done and not resume:
-        raise FileExistsError(f"{out_dir} already holds {len(done)} measurements; pass resume=True "
+    record = {"device": dev.describe(),
+              "experiment": {"step": step, "duration": duration, "sample_period": sample_period,
+                             "step_vel_limit": dev.config.step_vel_limit}}
+    existing = dataio.list_measurements(out_dir)
+    if existing and not resume:
+        raise FileExistsError(f"{out_dir} already holds {len(existing)} measurements; pass resume=True "
                               f"to complete the sweep, or choose an empty directory")
+    dataio.check_provenance(out_dir, record, write=True)
+
+    set_aside: list[Path] = []
+    done: set = set()
+    done_rounded: set = set()
+    for p in existing:
+        try:
+            m = dataio.read_measurement(p)
+        except dataio.MeasurementError:
+            set_aside.append(dataio.set_aside(p))  # damaged or unfinished: measured again
+            continue
+        if m.gains is not None:
+            done.add(tuple(float(x) for x in m.gains))
+            if not m.meta.get("gains"):  # a thesis file: its name holds three decimals only
+                done_rounded.add(dataio.gains_key(m.gains))
+    for p in dataio.find_uncommitted(out_dir):
+        g = dataio.gains_of_uncommitted(p)
+        c = dataio.claim(out_dir, g) if g is not None else None
+        if c is not None:  # its writer is gone (a live writer holds the claim)
+            if os.path.lexists(p):
+                set_aside.append(dataio.set_aside(p))
+            c.release()
+
     pending, seen = [], set(done)
     for g in grid:
-        k = dataio.gains_key(g)
-        if k not in seen:
+        k = tuple(float(x) for x in g)
+        if k not in seen and dataio.gains_key(g) not in done_rounded:
             seen.add(k)
             pending.append(g)
     skipped = len(grid) - len(pending)
     written: list[Path] = []
     unstable = 0
     vl = dev.config.step_vel_limit
+    size = chunk if dev.backend == "virtual" else 1
     bar = tqdm(total=len(grid), initial=skipped, desc="sweep", unit="step", disable=not progress)
+    queue = pending
+    claims: list = []
     try:
         with safe(dev):
-            if dev.backend == "virtual":
-                for i in range(0, len(pending), chunk):
-                    block = np.array(pending[i:i + chunk])
-                    out = dev.raw.step_batch(block, step_turns=step, duration=duration,
-                                             sample_period=sample_period, vel_limit=vl,
-                                             abort_error_turns=2 * abs(step))
-                    for resp in _responses_from_batch(dev, block, out, step):
+            while queue:
+                block, waiting = [], []
+                for g in queue:
+                    c = dataio.claim(out_dir, g) if len(block) < size else None
+                    if c is None:
+                        waiting.append(g)
+                    else:
+                        claims.append(c)
+                        block.append(g)
+                if block:  # a point another writer committed meanwhile is done
+                    now = dataio.committed_gains(out_dir)
+                    keep = [tuple(float(x) for x in g) not in now for g in block]
+                    skipped += keep.count(False)
+                    bar.update(keep.count(False))
+                    block = [g for g, k in zip(block, keep) if k]
+                if not block and waiting:
+                    # every point left is being measured by another writer: wait for one
+                    for c in claims:
+                        c.release()
+                    claims = []
+                    dataio.claim(out_dir, waiting[0], wait=True).release()
+                    queue = waiting
+                    continue
+                if block:
+                    if dev.backend == "virtual":
+                        arr = np.array(block)
+                        out = dev.raw.step_batch(arr, step_turns=step, duration=duration,
+                                                 sample_period=sample_period, vel_limit=vl,
+                                                 abort_error_turns=2 * abs(step))
+                        responses = _responses_from_batch(dev, arr, out, step)
+                    else:
+                        responses = [step_response(dev, *block[0], step=step, duration=duration,
+                                                   sample_period=sample_period)]
+                    for resp in responses:
                         written.append(resp.write(out_dir))
                         unstable += not resp.completed
                         bar.update(1)
-            else:
-                for g in pending:
-                    resp = step_response(dev, *g, step=step, duration=duration, sample_period=sample_period)
-                    written.append(resp.write(out_dir))
-                    unstable += not resp.completed
-                    bar.update(1)
+                for c in claims:
+                    c.release()
+                claims = []
+                queue = waiting
     finally:
+        for c in claims:
+            c.release()
         bar.close()
-    return SweepResult(written=written, skipped=skipped, unstable=unstable, out_dir=out_dir)
+    return SweepResult(written=written, skipped=skipped, unstable=unstable, out_dir=out_dir,
+                       set_aside=set_aside)
 
 
 # ---------------------------------------------------------------------------------------

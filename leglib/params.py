@@ -4,7 +4,16 @@ Every constant in ``data/params/*.toml`` is an inline table ``{ value, unit, sou
 The loader converts ``unit`` to SI, checks that it has the dimension the field expects and
 that the value is finite and in range, and raises :class:`ParameterError` (a ``ValueError``)
 naming the file and the field otherwise. Nothing silently defaults: every field of a
-dataclass must be present in its file.
+dataclass must be present in its file, and nothing is silently ignored: a section, field or
+inline-table key the dataclass does not declare is an error with a "did you mean".
+
+Keyword overrides (``load_leg("thesis", g=0.0)``, ``load_plant(payload_mass=0.5)``) are SI
+values and pass the same checks as the file's values. After the field checks, each loader
+checks the relations between fields: a centre of mass inside its link, a five-bar that
+closes at the operating point, ``gap_min < gap_max``, enums in range, a plant's ``leg_set``
+that exists. Every check runs once, at load; :meth:`LegParams.replace` and
+:meth:`LegParams.scaled` are programmatic and unchecked (identification builds legs with
+zero masses on purpose).
 
 Public entry points: :func:`load_leg`, :func:`load_motor`, :func:`load_odrive_config`.
 """
@@ -12,6 +21,7 @@ Public entry points: :func:`load_leg`, :func:`load_motor`, :func:`load_odrive_co
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -64,6 +74,23 @@ class ParameterError(ValueError):
     """A parameter file is missing, malformed, or holds an invalid value."""
 
 
+_ENTRY_KEYS = ("value", "unit", "source")
+
+# enums with their allowed values (ODrive firmware 0.5: MOTOR_TYPE_HIGH_CURRENT = 0,
+# MOTOR_TYPE_GIMBAL = 2, MOTOR_TYPE_ACIM = 3)
+_ENUMS: dict[str, tuple] = {"motor_type": (0, 2, 3), "mechanism": ("fivebar", "independent")}
+
+
+def _did_you_mean(name: str, known) -> str:
+    close = difflib.get_close_matches(str(name), list(known), n=1, cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else f"; known: {', '.join(sorted(known))}"
+
+
+def _short(value: Any, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + "...'"
+
+
 def _p(section: str, unit: str, check: str = "positive"):
     """Field metadata: TOML section, expected SI unit, value check.
 
@@ -87,10 +114,10 @@ def _resolve(name_or_path: str | Path, prefix: str) -> Path:
     return candidate
 
 
-def _check_value(path: Path, key: str, value: Any, check: str) -> float | int:
+def _check_value(path: str, key: str, value: Any, check: str) -> float | int:
     where = f"{path}: field {key!r}"
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ParameterError(f"{where}: value must be a number, got {value!r}")
+        raise ParameterError(f"{where}: value must be a number, got {_short(value)}")
     if not math.isfinite(value):
         raise ParameterError(f"{where}: value must be finite, got {value!r}")
     if check == "positive" and not value > 0:
@@ -112,52 +139,142 @@ def _check_value(path: Path, key: str, value: Any, check: str) -> float | int:
     return value
 
 
-def load_dataclass(cls, path: Path, overrides: dict[str, float] | None = None):
-    """Read ``path`` into dataclass ``cls`` whose fields carry :func:`_p` metadata."""
-    path = Path(path)
+def _read_toml(path: Path) -> dict:
+    """The TOML document at ``path``; ParameterError for anything but a readable regular
+    UTF-8 TOML file of sane size."""
+    import stat
     try:
-        with open(path, "rb") as fh:
-            doc = tomllib.load(fh)
+        st = path.stat()
     except FileNotFoundError:
         raise ParameterError(f"{path}: parameter file not found") from None
+    except OSError as exc:
+        raise ParameterError(f"{path}: cannot read parameter file ({exc.strerror})") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise ParameterError(f"{path}: not a regular file")
+    if st.st_size > _MAX_TOML_BYTES:
+        raise ParameterError(f"{path}: {st.st_size} bytes; a parameter file is at most {_MAX_TOML_BYTES}")
+    try:
+        raw = path.read_bytes()
+        text = raw.decode("utf-8")
+    except OSError as exc:
+        raise ParameterError(f"{path}: cannot read parameter file ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise ParameterError(f"{path}:{line}: not UTF-8 text (byte 0x{raw[exc.start]:02x})") from None
+    try:
+        return tomllib.loads(text), text
     except tomllib.TOMLDecodeError as exc:
-        raise ParameterError(f"{path}: not valid TOML: {exc}") from None
+        raise ParameterError(f"{path}: not valid TOML: {str(exc)[:200]}") from None
+
+
+def _locate(path: Path, text: str, section: str, name: str | None = None) -> str:
+    """``path:line`` of ``[section]`` (or of ``name = `` inside it); ``path`` when not found."""
+    sec_line, lines = None, text.splitlines()
+    for i, line in enumerate(lines, start=1):
+        stripped = line.strip()
+        if stripped.startswith("["):
+            if sec_line is not None and name is not None:
+                break
+            if stripped.split("#")[0].strip() == f"[{section}]":
+                sec_line = i
+                if name is None:
+                    return f"{path}:{i}"
+        elif sec_line is not None and name is not None:
+            key = stripped.split("=")[0].strip().strip('"\'')
+            if key == name:
+                return f"{path}:{i}"
+    return str(path)
+
+
+_MAX_TOML_BYTES = 1 << 20
+
+
+def _check_entry(where: str, key: str, value: Any, check: str, si_unit: str):
+    """One field's SI value: type, finiteness, range; returns it (ints for integer checks)."""
+    if check == "string":
+        if not isinstance(value, str) or not value:
+            raise ParameterError(f"{where}: field {key!r} must be a non-empty string, got {_short(value)}")
+        return value
+    return _check_value(where, key, value, check)
+
+
+def load_dataclass(cls, path: Path, overrides: dict[str, Any] | None = None):
+    """Read ``path`` into dataclass ``cls`` whose fields carry :func:`_p` metadata.
+
+    Every section, field and inline-table key of the file must be one the dataclass
+    declares; ``overrides`` (SI values, by field name) replace file values and pass the
+    same checks. Raises ParameterError naming the file (and line, where known) and field.
+    """
+    path = Path(path)
+    doc, text = _read_toml(path)
+    declared = {f.name: f for f in dataclasses.fields(cls) if f.metadata}
+    sections: dict[str, set] = {}
+    for f in declared.values():
+        sections.setdefault(f.metadata["section"], set()).add(f.name)
+    for sec, table in doc.items():
+        if sec not in sections:
+            raise ParameterError(f"{_locate(path, text, sec)}: unknown section [{sec}]"
+                                 f"{_did_you_mean(sec, sections)}")
+        if not isinstance(table, dict):
+            raise ParameterError(f"{path}: {sec!r} must be a section [{sec}], got {_short(table)}")
+        for name, entry in table.items():
+            if name not in sections[sec]:
+                elsewhere = [s for s, names in sections.items() if name in names]
+                hint = (f"; it belongs in section [{elsewhere[0]}]" if elsewhere
+                        else _did_you_mean(name, sections[sec]))
+                raise ParameterError(f"{_locate(path, text, sec, name)}: unknown field '{sec}.{name}'{hint}")
+            if isinstance(entry, dict):
+                for k in entry:
+                    if k not in _ENTRY_KEYS:
+                        raise ParameterError(f"{_locate(path, text, sec, name)}: field '{sec}.{name}': unknown key {k!r} "
+                                             f"(an entry holds {', '.join(_ENTRY_KEYS)})"
+                                             f"{_did_you_mean(k, _ENTRY_KEYS)}")
 
     values: dict[str, Any] = {}
     sources: dict[str, str] = {}
-    for f in dataclasses.fields(cls):
-        if not f.metadata:
-            continue
+    for f in declared.values():
         section, si_unit, check = f.metadata["section"], f.metadata["unit"], f.metadata["check"]
         key = f"{section}.{f.name}"
         table = doc.get(section)
         if not isinstance(table, dict) or f.name not in table:
             raise ParameterError(f"{path}: missing field {key!r} [{si_unit}]")
         entry = table[f.name]
+        at = _locate(path, text, section, f.name)
         if check == "string":
-            if not isinstance(entry, str) or not entry:
-                raise ParameterError(f"{path}: field {key!r} must be a non-empty string, "
-                                     f"got {entry!r}")
-            values[f.name] = entry
+            values[f.name] = _check_entry(at, key, entry, check, si_unit)
             continue
         if not isinstance(entry, dict) or "value" not in entry or "unit" not in entry:
             raise ParameterError(
-                f"{path}: field {key!r} must be an inline table {{ value = ..., unit = \"...\", "
-                f"source = \"...\" }}, got {entry!r}")
+                f"{at}: field {key!r} must be an inline table {{ value = ..., unit = \"...\", "
+                f"source = \"...\" }}, got {_short(entry)}")
         unit = entry["unit"]
-        if unit not in _UNITS:
-            raise ParameterError(f"{path}: field {key!r}: unknown unit {unit!r}")
+        if not isinstance(unit, str) or unit not in _UNITS:
+            raise ParameterError(f"{at}: field {key!r}: unknown unit {_short(unit)}"
+                                 f"{_did_you_mean(unit, [u for u, (_, d) in _UNITS.items() if d == si_unit])}")
         factor, dim = _UNITS[unit]
         if dim != si_unit:
             raise ParameterError(
-                f"{path}: field {key!r}: unit {unit!r} is {dim}, expected a unit of {si_unit}")
-        raw = _check_value(path, key, entry["value"], check)
-        values[f.name] = raw if isinstance(raw, int) and factor == 1.0 else raw * factor
-        sources[f.name] = str(entry.get("source", ""))
+                f"{at}: field {key!r}: unit {unit!r} is {dim}, expected a unit of {si_unit}")
+        raw = _check_value(at, key, entry["value"], check)
+        value = raw if isinstance(raw, int) and factor == 1.0 else raw * factor
+        if not math.isfinite(value):
+            raise ParameterError(f"{at}: field {key!r}: {raw!r} {unit} overflows in SI")
+        values[f.name] = value
+        source = entry.get("source", "")
+        if not isinstance(source, str):
+            raise ParameterError(f"{at}: field {key!r}: source must be a string, got {_short(source)}")
+        sources[f.name] = source
     for name, val in (overrides or {}).items():
         if name not in values:
-            raise ParameterError(f"{path}: override of unknown field {name!r}")
-        values[name] = val
+            raise ParameterError(f"{path}: override of unknown field {name!r}{_did_you_mean(name, values)}")
+        f = declared[name]
+        values[name] = _check_entry(f"{path} (keyword override)", f"{f.metadata['section']}.{name}", val,
+                                    f.metadata["check"], f.metadata["unit"])
+    for name, allowed in _ENUMS.items():
+        if name in values and values[name] not in allowed:
+            sec = declared[name].metadata["section"]
+            raise ParameterError(f"{_locate(path, text, sec, name)}: field '{sec}.{name}' must be one of "
+                                 f"{allowed}, got {_short(values[name])}")
     obj = cls(**values, source_file=str(path))
     object.__setattr__(obj, "_sources", sources)
     return obj
@@ -333,9 +450,21 @@ class PlantParams:
 def load_plant(name_or_path: str | Path = "default", **overrides) -> PlantParams:
     """Load a twin plant (``"default"`` -> ``data/params/plant_default.toml``)."""
     plant = load_dataclass(PlantParams, _resolve(name_or_path, "plant"), overrides)
-    if plant.mechanism not in ("fivebar", "independent"):
-        raise ParameterError(f"{plant.source_file}: field 'leg.mechanism' must be 'fivebar' or "
-                             f"'independent', got {plant.mechanism!r}")
+    where = plant.source_file
+    if not plant.gap_min < plant.gap_max:
+        raise ParameterError(f"{where}: fields 'stop.gap_min' ({math.degrees(plant.gap_min):g} deg) and "
+                             f"'stop.gap_max' ({math.degrees(plant.gap_max):g} deg): gap_min must be "
+                             f"below gap_max")
+    if plant.gap_max > math.pi:
+        raise ParameterError(f"{where}: field 'stop.gap_max' must be at most 180 deg, got "
+                             f"{math.degrees(plant.gap_max):g} deg")
+    if plant.usb_jitter > 1.0:
+        raise ParameterError(f"{where}: field 'sensing.usb_jitter' is the relative spread of the latency "
+                             f"and must lie in [0, 1] (a latency cannot be negative), got {plant.usb_jitter!r}")
+    try:
+        plant.base_leg()
+    except ParameterError as exc:
+        raise ParameterError(f"{where}: field 'leg.leg_set' = {plant.leg_set!r}: {exc}") from None
     return plant
 
 
@@ -350,19 +479,41 @@ def load_leg(name_or_path: str | Path = "thesis", **overrides) -> LegParams:
         Field values (SI) replacing the file's, e.g. ``g=0.0``.
     """
     leg = load_dataclass(LegParams, _resolve(name_or_path, "leg"), overrides)
-    if leg.lc1 > leg.l1 or leg.lc2 > leg.l2:
-        raise ParameterError(f"{leg.source_file}: centre of mass lc1/lc2 lies beyond its link")
-    if {leg.axis_of_q1, leg.axis_of_q2} != {0, 1}:
-        raise ParameterError(f"{leg.source_file}: fields 'drive.axis_of_q1' and "
-                             f"'drive.axis_of_q2' must be 0 and 1 in some order")
+    _check_leg(leg)
     return leg
 
 
-def load_motor(name_or_path: str | Path = "mn5212") -> MotorParams:
-    """Load motor parameters (``"mn5212"`` is the thesis's motor)."""
-    return load_dataclass(MotorParams, _resolve(name_or_path, "motor"))
+def _check_leg(leg: "LegParams") -> None:
+    """Relations between a leg's fields: ParameterError naming the file and field."""
+    where = leg.source_file
+    for i in (1, 2, 3, 4):
+        lc, link = getattr(leg, f"lc{i}"), getattr(leg, f"l{i}")
+        if lc > link:
+            raise ParameterError(f"{where}: field 'com.lc{i}' = {lc:g} m lies beyond its link "
+                                 f"(geometry.l{i} = {link:g} m)")
+    if {leg.axis_of_q1, leg.axis_of_q2} != {0, 1}:
+        raise ParameterError(f"{where}: fields 'drive.axis_of_q1' and "
+                             f"'drive.axis_of_q2' must be 0 and 1 in some order")
+    # the five-bar closes when the knees (ends of links 1 and 2) are no further apart than
+    # l3 + l4 and no closer than |l3 - l4|; checked at the operating point
+    d = math.hypot(leg.l1 * math.cos(leg.q1) - leg.l2 * math.cos(leg.q2),
+                   leg.l1 * math.sin(leg.q1) - leg.l2 * math.sin(leg.q2))
+    if not abs(leg.l3 - leg.l4) <= d <= leg.l3 + leg.l4:
+        raise ParameterError(
+            f"{where}: fields 'geometry.l1'..'geometry.l4' and 'operating_point.q1', 'q2': the five-bar "
+            f"cannot close at the operating point (knees {d:.4g} m apart; the lower links "
+            f"reach between {abs(leg.l3 - leg.l4):.4g} and {leg.l3 + leg.l4:.4g} m)")
 
 
-def load_odrive_config(name_or_path: str | Path = "thesis") -> OdriveConfig:
-    """Load an ODrive configuration (``"thesis"`` is Listing 7.1)."""
-    return load_dataclass(OdriveConfig, _resolve(name_or_path, "odrive"))
+def load_motor(name_or_path: str | Path = "mn5212", **overrides) -> MotorParams:
+    """Load motor parameters (``"mn5212"`` is the thesis's motor); ``overrides`` in SI."""
+    return load_dataclass(MotorParams, _resolve(name_or_path, "motor"), overrides)
+
+
+def load_odrive_config(name_or_path: str | Path = "thesis", **overrides) -> OdriveConfig:
+    """Load an ODrive configuration (``"thesis"`` is Listing 7.1); ``overrides`` native units."""
+    cfg = load_dataclass(OdriveConfig, _resolve(name_or_path, "odrive"), overrides)
+    if cfg.vel_limit_tolerance < 1.0:
+        raise ParameterError(f"{cfg.source_file}: field 'firmware.vel_limit_tolerance' must be >= 1 "
+                             f"(a factor on vel_limit), got {cfg.vel_limit_tolerance!r}")
+    return cfg

@@ -73,3 +73,49 @@ def test_cli_reports_a_bad_spec_without_a_traceback(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("error: ") and "parameters.payload is not a parameter of 01_derivation" in err
     assert not (tmp_path / "out").exists()  # nothing ran
+
+
+@pytest.mark.parametrize("text,message", [
+    ('name = "x"\nnotebooks = ["01_derivation"]\nnotebook = ["02_friction_fitting"]\n',
+     "unknown key 'notebook'; did you mean 'notebooks'?"),
+    ('name = "x"\nnotebooks = ["01_derivation"]\n[parameter]\nsmoke = true\n',
+     "unknown key 'parameter'; did you mean 'parameters'?"),
+    ('name = ".."\nnotebooks = ["01_derivation"]\n', "field 'name' must be a plain directory name"),
+    ('name = "a/b"\nnotebooks = ["01_derivation"]\n', "field 'name' must be a plain directory name"),
+    ('name = "' + "a" * 300 + '"\nnotebooks = ["01_derivation"]\n', "at most 64 characters"),
+    ('name = "x"\nnotebooks = ["../notebooks/01_derivation"]\n', "is not a notebook name"),
+    ('name = "x"\nnotebooks = [1]\n', "1 is not a notebook name"),
+    ('name = "x"\nnotebooks = ["01_derivation"]\n[parameters]\nsmoke = "no"\n',
+     "parameters.smoke = 'no': expected bool"),
+    ('name = "x"\nnotebooks = ["01_derivation"]\n[grid]\ngrid_n = [6, 6]\n', "grid.grid_n repeats a value"),
+    ('name = "x"\nnotebooks = ["01_derivation"]\n[grid]\ngrid_n = [6.5]\n', "grid.grid_n = 6.5: expected int"),
+    ('name = "x"\nnotebooks = ["01_derivation"]\n[parameters]\ngrid_n = 6\n[grid]\ngrid_n = [7]\n',
+     "grid_n is both in [parameters] and in [grid]"),
+    ('name = "x"\nnotebooks = ["01_derivation"]\n[parameters]\ngird_n = 6\n', "did you mean 'grid_n'?"),
+])
+def test_spec_refuses_unknown_keys_bad_names_and_types(tmp_path, text, message):
+    p = tmp_path / "s.toml"
+    p.write_text(text)
+    with pytest.raises(batch.SpecError) as err:
+        batch.load_spec(p)
+    assert message in str(err.value) and str(p) in str(err.value)
+    assert len(str(err.value)) < 500
+
+
+def test_spec_that_is_not_a_readable_utf8_file(tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_bytes('name = "caf\u00e9"\nnotebooks = ["01_derivation"]\n'.encode("latin-1"))
+    with pytest.raises(batch.SpecError, match=r":1: not UTF-8 text \(byte 0xe9\)"):
+        batch.load_spec(p)
+    d = tmp_path / "dir.toml"
+    d.mkdir()
+    with pytest.raises(batch.SpecError, match="not a regular file"):
+        batch.load_spec(d)
+
+
+def test_run_ids_are_plain_directory_names():
+    spec = {"name": "x", "notebooks": ["04_pid_sweeps"], "parameters": {},
+            "grid": {"plant": ["../../etc", "a" * 300]}}
+    ids = [r["id"] for r in batch.runs_of(spec)]
+    assert len(set(ids)) == 2
+    assert all("/" not in i and len(i) <= 90 and i not in (".", "..") for i in ids)

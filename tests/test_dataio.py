@@ -1,7 +1,9 @@
-"""Measurement files: atomic, never overwritten, strict reader with file:line errors."""
+"""Measurement files: committed as one unit, never overwritten, strict reader with
+file:line errors; thesis files still load."""
 
 import datetime as dt
 import json
+import os
 
 import numpy as np
 import pytest
@@ -9,34 +11,70 @@ import pytest
 from leglib import dataio
 
 WHEN = dt.datetime(2021, 7, 1, 12, 30, 5)
+THESIS = "20210701_123005_50.000;0.046;0.001_positions.csv"
 
 
-def _write(tmp_path, **kw):
-    t = np.arange(5) * 0.002
-    return dataio.write_measurement(tmp_path, t, 267 + t, 273 - t, {"backend": "virtual"},
-                                    gains=(50, 0.046, 0.001), when=WHEN, **kw)
+def _write(tmp_path, gains=(50, 0.046, 0.001), n=5, **kw):
+    t = np.arange(n) * 0.002
+    return dataio.write_measurement(tmp_path, t, 267 + t, 273 - t, {"backend": "virtual", "completed": True},
+                                    gains=gains, when=WHEN, **kw)
 
 
-def test_round_trip_and_thesis_name(tmp_path):
+def test_round_trip_exact_gains_in_the_name(tmp_path):
     p = _write(tmp_path)
-    assert p.name == "20210701_123005_50.000;0.046;0.001_positions.csv"
+    assert p.name.startswith("20210701_123005_50.0;0.046;0.001_lg") and p.name.endswith("_positions.csv")
+    assert dataio.is_leglib_name(p) and not dataio.is_leglib_name(THESIS)
     m = dataio.read_measurement(p)
-    assert m.gains == (50, 0.046, 0.001) and m.absolute
+    assert m.gains == (50, 0.046, 0.001) and m.absolute and m.stable
     np.testing.assert_allclose(m.angle1, 267 + m.t)
     side = json.loads(p.with_suffix(".json").read_text())
-    assert {"backend", "leglib_version", "git_commit", "gains"} <= set(side)
+    assert {"backend", "leglib_version", "git_commit", "gains", "samples", "csv_sha256", "format"} <= set(side)
+    assert side["format"] == dataio.FORMAT and side["samples"] == 5
 
 
-def test_never_overwrites(tmp_path):
-    p = _write(tmp_path)
-    before = p.read_bytes()
-    with pytest.raises(FileExistsError):
+def test_near_equal_gains_and_same_second_writers_never_collide(tmp_path):
+    a = _write(tmp_path, gains=(20, 0.0021, 0.02))
+    b = _write(tmp_path, gains=(20, 0.0024, 0.02))
+    c = _write(tmp_path, gains=(20, 0.0024, 0.02))  # a second writer, same second, same gains
+    assert len({a, b, c}) == 3 and len(dataio.list_measurements(tmp_path)) == 3
+    assert dataio.read_measurement(a).gains == (20, 0.0021, 0.02)
+    assert dataio.read_measurement(b).gains == (20, 0.0024, 0.02)
+    # an ugly float survives the name exactly
+    g = (np.linspace(20, 50, 4)[1], np.linspace(0.002, 0.18, 10)[3], 1e-5)
+    assert dataio.parse_filename(_write(tmp_path, gains=g))[1] == tuple(float(x) for x in g)
+    assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_files_follow_the_umask(tmp_path):
+    old = os.umask(0o022)
+    try:
+        p = _write(tmp_path)
+    finally:
+        os.umask(old)
+    assert p.stat().st_mode & 0o777 == 0o644 == p.with_suffix(".json").stat().st_mode & 0o777
+
+
+def test_interrupt_between_sidecar_and_csv_is_uncommitted(tmp_path, monkeypatch):
+    real = dataio.write_bytes_atomic
+    calls = []
+
+    def dying(path, data, overwrite=False):
+        calls.append(path)
+        if str(path).endswith(".csv"):
+            raise KeyboardInterrupt
+        return real(path, data, overwrite)
+
+    monkeypatch.setattr(dataio, "write_bytes_atomic", dying)
+    with pytest.raises(KeyboardInterrupt):
         _write(tmp_path)
-    assert p.read_bytes() == before
-    assert not list(tmp_path.glob("*.tmp"))
+    monkeypatch.undo()
+    assert dataio.list_measurements(tmp_path) == []          # nothing committed
+    left = dataio.find_uncommitted(tmp_path)
+    assert [p.suffix for p in left] == [".json"]
+    assert dataio.gains_of_uncommitted(left[0]) == (50, 0.046, 0.001)
 
 
-def _bad(tmp_path, body, name="20210701_123005_50.000;0.046;0.001_positions.csv"):
+def _thesis(tmp_path, body, name=THESIS):
     p = tmp_path / name
     p.write_text(body)
     return p
@@ -44,32 +82,195 @@ def _bad(tmp_path, body, name="20210701_123005_50.000;0.046;0.001_positions.csv"
 
 @pytest.mark.parametrize("body,message", [
     ("0.0,1,2\n0.002,1\n", ":2: expected 3 comma-separated columns"),
-    ("0.0,1,2\n0.002,1,x\n", ":2: not a number"),
-    ("0.0,1,2\n0.002,nan,2\n", ":2: NaN or infinite"),
+    ("0.0,1,2\n0.002,1,x\n", ":2: column 3: not a number"),
+    ("0.0,1,2\n0.002,nan,2\n", ":2: column 2: NaN or infinite"),
+    ("0.0,1,2\n0.002,1e400,2\n", ":2: column 2: NaN or infinite"),
+    ("0.0,1,2\n0.002,1e308,2\n", ":2: column 2: angle 1e+308 deg beyond"),
+    ("0.0,1,2\n0.002,1_0,2\n", ":2: column 2: not a number"),
+    ("0.0,1,2\n0.002,\uff11,2\n", ":2: column 2: not a number"),
     ("0.0,1,2\n0.004,1,2\n0.003,1,2\n", ":3: time 0.003 does not increase"),
     ("0.0,1,2\n", "fewer than two data rows"),
+    ("", "no data rows"),
+    ("0.0,1,2\n" + "9" * 100_000 + "\n", ":2: line of 100000 characters"),
 ])
 def test_malformed_rows_name_file_and_line(tmp_path, body, message):
-    p = _bad(tmp_path, body)
+    p = _thesis(tmp_path, body)
     with pytest.raises(dataio.MeasurementError) as err:
         dataio.read_measurement(p)
     assert message in str(err.value) and str(p) in str(err.value)
+    assert len(str(err.value)) < 400
 
 
 @pytest.mark.parametrize("name", ["positions.csv", "20210701_123005_50;0.04_positions.csv",
-                                  "20210701_123005_a;b;c_positions.csv"])
+                                  "20210701_123005_a;b;c_positions.csv",
+                                  "20210701_123005_50.000;2_66.97;0.001_positions.csv",
+                                  "20210701_123005_50.000;\uff12.0;0.001_positions.csv",
+                                  "20210701_123005_50.000;nan;0.001_positions.csv"])
 def test_unparseable_names(tmp_path, name):
     with pytest.raises(dataio.MeasurementError, match="cannot parse"):
-        dataio.read_measurement(_bad(tmp_path, "0,1,2\n1,1,2\n", name=name))
+        dataio.read_measurement(_thesis(tmp_path, "0,1,2\n1,1,2\n", name=name))
 
 
-def test_bad_sidecar(tmp_path):
-    p = _bad(tmp_path, "0,1,2\n1,1,2\n")
-    p.with_suffix(".json").write_text("{not json")
-    with pytest.raises(dataio.MeasurementError, match="sidecar is not valid JSON"):
+def _with_sidecar(tmp_path, **changes):
+    p = _write(tmp_path, n=750)
+    side = p.with_suffix(".json")
+    meta = json.loads(side.read_text())
+    meta.update(changes)
+    side.write_text(json.dumps(meta))
+    return p
+
+
+@pytest.mark.parametrize("changes,message", [
+    ({"completed": "false"}, "field 'completed' must be true or false"),
+    ({"gains": [20.0, 0.1, 0.5]}, "gains in the name (50.0, 0.046, 0.001) differ from the sidecar's"),
+    ({"gains": [50, "x", 1]}, "field 'gains' must be a list of three finite numbers"),
+    ({"samples": 376}, "750 samples, but its sidecar"),
+    ({"samples": "750"}, "field 'samples' must be an integer"),
+    ({"angles": "radians"}, "field 'angles' must be 'absolute' or 'relative'"),
+    ({"columns": ["t", "a", "b"]}, "field 'columns' must be"),
+    ({"csv_sha256": "0" * 64}, "SHA-256 mismatch"),
+    ({"format": 99}, "field 'format' must be an integer"),
+])
+def test_sidecar_checked_against_file_and_name(tmp_path, changes, message):
+    p = _with_sidecar(tmp_path, **changes)
+    with pytest.raises(dataio.MeasurementError) as err:
+        dataio.read_measurement(p)
+    assert message in str(err.value)
+
+
+def test_cut_file_is_refused(tmp_path):
+    p = _write(tmp_path, n=750)
+    lines = p.read_text().splitlines(keepends=True)
+    p.write_text("".join(lines[:376]))
+    with pytest.raises(dataio.MeasurementError, match="376 samples, but its sidecar .* says 750"):
+        dataio.read_measurement(p)
+
+
+@pytest.mark.parametrize("text,kind", [("[1, 2]", "list"), ("null", "NoneType"), ('"hello"', "str"),
+                                       ("{not json", "not valid JSON"), ("[" * 100_000, "sidecar")])
+def test_sidecar_that_is_not_an_object(tmp_path, text, kind):
+    p = _thesis(tmp_path, "0,0,0\n1,1,2\n")
+    p.with_suffix(".json").write_text(text)
+    with pytest.raises(dataio.MeasurementError, match=kind) as err:
+        dataio.read_measurement(p)
+    assert str(p.with_suffix(".json")) in str(err.value)
+
+
+def test_not_regular_files_are_refused_without_blocking(tmp_path):
+    d = tmp_path / THESIS
+    d.mkdir()
+    with pytest.raises(dataio.MeasurementError, match="a directory"):
+        dataio.read_measurement(d)
+    for name, make, kind in [("20210701_123006_1.0;1.0;1.0_positions.csv", os.mkfifo, "a FIFO"),
+                             ("20210701_123007_1.0;1.0;1.0_positions.csv",
+                              lambda p: os.symlink("/dev/zero", p), "a device"),
+                             ("20210701_123008_1.0;1.0;1.0_positions.csv",
+                              lambda p: os.symlink(p.name, p), "symlink loop")]:
+        p = tmp_path / name
+        make(p)
+        with pytest.raises(dataio.MeasurementError, match=kind):
+            dataio.read_measurement(p)
+
+
+def test_latin1_and_oversized_files(tmp_path, monkeypatch):
+    p = tmp_path / THESIS
+    p.write_bytes("0,0,0\n1,1,2 \u00e9\n".encode("latin-1"))
+    with pytest.raises(dataio.MeasurementError, match=r":2: measurement file is not UTF-8 text \(byte 0xe9"):
+        dataio.read_measurement(p)
+    monkeypatch.setattr(dataio, "MAX_CSV_BYTES", 10)
+    p.write_text("0,0,0\n1,1,2\n")
+    with pytest.raises(dataio.MeasurementError, match="12 bytes, more than the 10"):
         dataio.read_measurement(p)
 
 
 def test_thesis_file_without_sidecar_is_relative(tmp_path):
-    m = dataio.read_measurement(_bad(tmp_path, "0.000000,0.000000,0.000000\n0.002,0.1,-0.1\n"))
+    m = dataio.read_measurement(_thesis(tmp_path, "0.000000,0.000000,0.000000\n0.002,0.1,-0.1\n"))
     assert not m.absolute and m.gains == (50.0, 0.046, 0.001) and m.stable
+
+
+def test_orphan_csv_of_an_old_leglib_write_is_not_a_thesis_file(tmp_path):
+    """Before format 2 a CSV could be committed without its sidecar: absolute angles."""
+    p = _thesis(tmp_path, "0.000000,267.000000,273.000000\n0.002,267.1,272.9\n")
+    with pytest.raises(dataio.MeasurementError, match="absolute angles without their sidecar"):
+        dataio.read_measurement(p)
+    # a format-2 CSV without its sidecar is never read as a thesis file
+    q = _write(tmp_path)
+    q.with_suffix(".json").unlink()
+    with pytest.raises(dataio.MeasurementError, match="sidecar .* missing"):
+        dataio.read_measurement(q)
+
+
+def test_old_leglib_files_with_sidecar_still_load(tmp_path):
+    p = tmp_path / THESIS
+    t = np.arange(4) * 0.002
+    p.write_text("".join(f"{a:.6f},{267 + a:.6f},{273 - a:.6f}\n" for a in t))
+    p.with_suffix(".json").write_text(json.dumps({
+        "columns": ["time [s]", "q1 [deg]", "q2 [deg]"], "angles": "absolute", "gains": [50.0, 0.046, 0.0012],
+        "samples": 4, "completed": False, "backend": "virtual"}))
+    m = dataio.read_measurement(p)
+    assert m.absolute and not m.stable and m.gains == (50.0, 0.046, 0.0012)
+
+
+def test_directory_reads(tmp_path):
+    with pytest.raises(dataio.MeasurementError, match="no such directory"):
+        dataio.list_measurements(tmp_path / "missing_dir")
+    with pytest.raises(dataio.MeasurementError, match="not a directory"):
+        dataio.list_measurements(_write(tmp_path))
+    bad = _thesis(tmp_path, "0,0,0\n1,x,2\n", name="20210701_123009_1.0;1.0;1.0_positions.csv")
+    with pytest.raises(dataio.MeasurementError, match="not a number"):
+        dataio.read_measurements(tmp_path)
+    with pytest.warns(UserWarning, match="1 of 2 measurement files skipped"):
+        r = dataio.read_measurements(tmp_path, strict=False)
+    assert len(r.measurements) == 1 and r.problems[0][0] == bad
+
+
+def test_gainmap_refuses_duplicate_gains_and_missing_dirs(tmp_path):
+    from leglib import gainmap as GM
+    with pytest.raises(dataio.MeasurementError, match="no such directory"):
+        GM.GainMap.from_measurements(str(tmp_path / "missing_dir"))
+    a = _write(tmp_path, gains=(20, 0.05, 0.02))
+    b = _write(tmp_path, gains=(20, 0.05, 0.02))
+    with pytest.raises(dataio.MeasurementError) as err:
+        GM.GainMap.from_measurements(tmp_path)
+    assert str(a) in str(err.value) and str(b) in str(err.value)
+
+
+def test_provenance_refuses_another_leg(tmp_path):
+    rec = {"device": {"backend": "virtual", "firmware": "0.5.6", "twin_seed": 1,
+                      "twin_plant_values": {"payload_mass": 0.0, "_sources": {"a": "b"}}},
+           "experiment": {"step": 0.4, "duration": 1.5}}
+    dataio.check_provenance(tmp_path, rec, write=True)
+    assert (tmp_path / "sweep.json").exists()
+    dataio.check_provenance(tmp_path, rec)             # the same: fine
+    other = json.loads(json.dumps(rec))
+    other["device"]["twin_plant_values"]["payload_mass"] = 0.5
+    with pytest.raises(dataio.ProvenanceError, match=r"twin_plant_values\.payload_mass: 0\.0 there, 0\.5 now"):
+        dataio.check_provenance(tmp_path, other)
+    other = json.loads(json.dumps(rec))
+    other["experiment"]["duration"] = 0.3
+    with pytest.raises(dataio.ProvenanceError, match="experiment.duration"):
+        dataio.check_provenance(tmp_path, other)
+
+
+def test_claims_are_exclusive_and_released(tmp_path):
+    c = dataio.claim(tmp_path, (1.0, 2.0, 3.0))
+    assert c is not None and dataio.claim(tmp_path, (1.0, 2.0, 3.0)) is None
+    assert dataio.claim(tmp_path, (1.0, 2.0, 3.0000001)) is not None
+    c.release()
+    assert dataio.claim(tmp_path, (1.0, 2.0, 3.0)) is not None
+
+
+def test_cached_result_from_another_leg_is_refused(tmp_path):
+    t = np.arange(5) * 0.002
+    meta = {"backend": "virtual", "twin_seed": 4, "twin_plant_values": {"payload_mass": 0.0, "inertia_scale": 0.9}}
+    src = dataio.write_measurement(tmp_path, t, 267 + t, 273 - t, meta)
+    result = tmp_path / "identified.json"
+    result.write_text(json.dumps({"source": str(src), "leg": {}}))
+    here = {"backend": "virtual", "twin_seed": 2, "twin_plant_values": {"payload_mass": 0.0, "inertia_scale": 0.9}}
+    dataio.check_result_provenance(result, here)  # another noise seed: the same leg
+    heavy = {"backend": "virtual", "twin_plant_values": {"payload_mass": 0.5, "inertia_scale": 0.9}}
+    with pytest.raises(dataio.ProvenanceError, match=r"payload_mass: 0\.0 there, 0\.5 now"):
+        dataio.check_result_provenance(result, heavy)
+    result.write_text(json.dumps({"source": str(tmp_path / "gone_positions.csv")}))
+    with pytest.warns(UserWarning, match="cannot check"):
+        dataio.check_result_provenance(result, heavy)

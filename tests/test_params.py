@@ -78,3 +78,67 @@ def test_overrides(leg):
     assert load_leg("thesis", g=0.0).g == 0.0
     with pytest.raises(ParameterError, match="unknown field 'gg'"):
         load_leg("thesis", gg=1.0)
+
+
+def _variant_of(tmp_path: Path, stem: str, old: str, new: str) -> Path:
+    text = (PARAMS_DIR / f"{stem}.toml").read_text()
+    assert old in text, old
+    p = tmp_path / f"{stem}_bad.toml"
+    p.write_text(text.replace(old, new, 1))
+    return p
+
+
+@pytest.mark.parametrize("stem,old,new,message", [
+    ("leg_thesis", "[geometry]\n", '[geometry]\nl5 = { value = 0.1, unit = "m", source = "x" }\n',
+     ":28: unknown field 'geometry.l5'"),
+    ("leg_thesis", "[geometry]\n", "[geometri]\nl1 = 1\n[geometry]\n", "unknown section [geometri]; did you mean 'geometry'?"),
+    ("leg_thesis", "lc3 = { value", "lcc3 = { value", "unknown field 'com.lcc3'; did you mean 'lc3'?"),
+    ("leg_thesis", "g = { value = 9.81,", "g = { vlaue = 1, value = 9.81,", "unknown key 'vlaue'"),
+    ("leg_thesis", "lc3 = { value = 0.093017", "lc3 = { value = 0.2", "field 'com.lc3' = 0.2 m lies beyond its link"),
+    ("leg_thesis", "l4 = { value = 0.162", "l4 = { value = 0.3", "the five-bar cannot close"),
+    ("odrive_thesis", 'motor_type = { value = 0', 'motor_type = { value = 7', "field 'config.motor_type' must be one of (0, 2, 3), got 7"),
+    ("plant_default", "usb_jitter = { value = 0.2", "usb_jitter = { value = 5", "'sensing.usb_jitter'"),
+    ("plant_default", "gap_max = { value = 160.0", "gap_max = { value = 1.0", "gap_min must be below gap_max"),
+    ("plant_default", 'leg_set = "thesis"', 'leg_set = "nosuchleg"', "field 'leg.leg_set' = 'nosuchleg': no parameter set"),
+    ("plant_default", 'mechanism = "fivebar"', 'mechanism = "fivebars"', "field 'leg.mechanism' must be one of"),
+])
+def test_typos_and_impossible_values_are_refused_at_load(tmp_path, stem, old, new, message):
+    from leglib.params import load_odrive_config, load_plant
+    loader = {"leg_thesis": load_leg, "odrive_thesis": load_odrive_config, "plant_default": load_plant}[stem]
+    bad = _variant_of(tmp_path, stem, old, new)
+    with pytest.raises(ParameterError) as err:
+        loader(bad)
+    assert message in str(err.value) and str(bad) in str(err.value)
+
+
+@pytest.mark.parametrize("call,message", [
+    (lambda: load_leg("thesis", m3="heavy"), "field 'mass.m3': value must be a number, got 'heavy'"),
+    (lambda: load_leg("thesis", g=float("nan")), "field 'environment.g': value must be finite"),
+    (lambda: load_leg("thesis", encoder_cpr=4000.5), "must be an integer"),
+    (lambda: load_leg("thesis", lc1=0.5), "field 'com.lc1' = 0.5 m lies beyond its link"),
+    (lambda: load_leg("thesis", gg=1.0), "unknown field 'gg'; did you mean 'g'?"),
+])
+def test_keyword_overrides_pass_the_same_checks(call, message):
+    with pytest.raises(ParameterError) as err:
+        call()
+    assert message in str(err.value) and "leg_thesis.toml" in str(err.value)
+
+
+def test_plant_overrides_and_relations():
+    from leglib.params import load_plant
+    with pytest.raises(ParameterError, match="'scale.payload_mass': value must be non-negative"):
+        load_plant("default", payload_mass=-3)
+    with pytest.raises(ParameterError, match="gap_min must be below gap_max"):
+        load_plant("default", gap_min=3.0, gap_max=0.1)
+    assert load_plant("default", payload_mass=0.5).payload_mass == 0.5
+
+
+def test_parameter_file_that_is_not_a_utf8_regular_file(tmp_path):
+    d = tmp_path / "dir.toml"
+    d.mkdir()
+    with pytest.raises(ParameterError, match="not a regular file"):
+        load_leg(d)
+    p = tmp_path / "latin.toml"
+    p.write_bytes(b"# caf\xe9\n")
+    with pytest.raises(ParameterError, match=r"latin.toml:1: not UTF-8 text \(byte 0xe9\)"):
+        load_leg(p)
