@@ -163,7 +163,10 @@ def test_05_validation(sweep04, tmp_path):
     tm = m["thesis_measure"]
     errors_small = abs(tm["error_zeta"]) <= 0.1 and abs(tm["error_f"]) <= 0.1
     assert tm["reached"] == errors_small
-    if not tm["reached"]:  # then the notebook shows why: the twin's readings stay below the target
-        assert tm["max_thesis_zeta"] < tm["target"]["zeta"]
+    if not tm["reached"]:
+        # the notebook shows where the target lies: the twin's best Listing 7.7 reading
+        assert 0 <= tm["max_thesis_zeta"] < 1
+        if tm["max_thesis_zeta"] < 0.8 * tm["target"]["zeta"]:   # out of reach: the step reads low too
+            assert tm["error_zeta"] < -0.1
     assert m["virtual_leg"]["achieved"]["k"] > 0
     assert m["summary"]["model"]["experiments"] < m["summary"]["map"]["experiments"]
