@@ -82,6 +82,9 @@ OFFSET_LOCK_TIME = 1.0           # encoder.cpp:329 start_lock_duration
 CALIB_SCAN_DISTANCE = 16 * math.pi   # encoder.hpp:22 [rad electrical]
 CALIB_SCAN_OMEGA = 4 * math.pi       # encoder.hpp:23 [rad/s electrical]
 CALIB_RANGE = 0.02                   # encoder.hpp:21
+# a full calibration sequence (motor, then encoder offset) from request to IDLE
+CALIBRATION_DURATION = (R_MEASUREMENT_TIME + L_MEASUREMENT_TIME + OFFSET_LOCK_TIME
+                        + 2 * CALIB_SCAN_DISTANCE / CALIB_SCAN_OMEGA)
 # not in the firmware: how long the board takes from reset until it answers on USB again
 # (bootloader, clock and USB enumeration). Assumed; the host must wait for it anyway.
 BOOT_TIME = 1.5
