@@ -241,11 +241,21 @@ class Device:
 
 @contextlib.contextmanager
 def safe(dev: Device):
-    """Both axes IDLE when the block ends: normally, on an exception, on KeyboardInterrupt."""
+    """Both axes IDLE when the block ends: normally, on an exception, on KeyboardInterrupt.
+
+    Once both are IDLE the watchdog is switched off again: it counts down in IDLE too
+    (axis.cpp:171-182) and, unfed, would flag an error that blocks the next experiment.
+    When the link is gone it stays on, which is what stops the motors then.
+    """
     try:
         yield dev
     finally:
-        dev.idle_all()
+        if not dev.idle_all():
+            for a in (0, 1):
+                try:
+                    dev.set(a, "enable_watchdog", False)
+                except Exception:  # noqa: BLE001 - never raise from the safety path
+                    pass
 
 
 # ---------------------------------------------------------------------------------------
