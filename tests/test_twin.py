@@ -233,7 +233,11 @@ def test_usb_polling_path_on_the_twin_agrees_with_the_kernel_path():
     assert polled.completed
     n = min(len(polled.t), len(batch.t))
     # same leg, same gains: the responses agree up to the polling loop's timing
-    assert np.max(np.abs(polled.q2[:n] - np.interp(polled.t[:n], batch.t, batch.q2))) < np.radians(2.0)
+    # the leg falls back to a rest pose a little different each time (friction): compare
+    # the motion from where each step started
+    moved_polled = polled.q2[:n] - polled.q2[0]
+    moved_batch = np.interp(polled.t[:n], batch.t, batch.q2 - batch.q2[0])
+    assert np.max(np.abs(moved_polled - moved_batch)) < np.radians(2.0)
     unstable = io._step_usb(dev, (50.0, 0.002, 0.08), 0.4, 1.5, 0.002, 12.0, 0.8)
     assert not unstable.completed and "oscillation" in unstable.abort_reason
     assert all(int(dev.get(a, "current_state")) == 1 for a in (0, 1))
