@@ -766,6 +766,11 @@ def _step_usb(dev: Device, gains, step, duration, sample_period, vel_limit, abor
         t0 = dev.time()
         monitors = {a: np.zeros(T.N_OSC) for a in (0, 1)}
         next_sample = 0.0
+        # each property is one USB transaction (about 0.4 ms): read the counts every sample
+        # and do one housekeeping transaction per sample, in turn: feed axis 0, feed axis 1,
+        # check the state of axis 0, of axis 1
+        k = 0
+        dropped = None
         while True:
             now = dev.time() - t0
             if now > duration:
@@ -773,13 +778,17 @@ def _step_usb(dev: Device, gains, step, duration, sample_period, vel_limit, abor
             if now < next_sample:
                 dev.sleep(min(next_sample - now, sample_period))
                 continue
-            next_sample += sample_period
+            # the next slot on the grid; slots already missed are skipped, not caught up in a burst
+            next_sample += sample_period * max(1, math.ceil((now - next_sample) / sample_period + 1e-9))
             n1, n2 = dev.counts(a_q1), dev.counts(a_q2)
             ts.append(dev.time() - t0)
             c1.append(n1)
             c2.append(n2)
-            for a in (0, 1):
-                dev.axis(a).watchdog_feed()
+            task, k = k % 4, k + 1
+            if task < 2:
+                dev.axis(task).watchdog_feed()
+            elif int(dev.get(task - 2, "current_state")) != AXIS_STATE_CLOSED_LOOP_CONTROL:
+                dropped = task - 2
             if on_sample is not None:
                 on_sample({"t": ts[-1], "q1": float(ax.counts_to_joint(n1, 0)),
                            "q2": float(ax.counts_to_joint(n2, 1)), "iq": None, "setpoint": setpoint})
@@ -791,8 +800,8 @@ def _step_usb(dev: Device, gains, step, duration, sample_period, vel_limit, abor
             if any(T.oscillation_update(monitors[a], errs[a], 0.025 * abort_error) for a in (0, 1)):
                 reason = "oscillation not decaying (growing or sustained)"
                 break
-            if any(int(dev.get(a, "current_state")) != AXIS_STATE_CLOSED_LOOP_CONTROL for a in (0, 1)):
-                reason = f"axis dropped out of closed loop ({errors(dev)})"
+            if dropped is not None:
+                reason = f"axis{dropped} dropped out of closed loop ({errors(dev)})"
                 break
         if reason is None and _any_error(dev):
             reason = f"firmware error during the step ({errors(dev)})"
@@ -948,12 +957,16 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
                         written.append(resp.write(out_dir))
                         unstable += not resp.completed
                         bar.update(1)
+                    if _any_error(dev):   # recorded with the failed point; the sweep goes on
+                        clear_errors(dev)
             else:
                 for g in pending:
                     resp = step_response(dev, *g, step=step, duration=duration, sample_period=sample_period)
                     written.append(resp.write(out_dir))
                     unstable += not resp.completed
                     bar.update(1)
+                    if not resp.completed and _any_error(dev):   # recorded in its file
+                        clear_errors(dev)
     finally:
         bar.close()
     return SweepResult(written=written, skipped=skipped, unstable=unstable, out_dir=out_dir)
@@ -1084,6 +1097,8 @@ def torque_loop(odrv, policy, duration: float, period: float | None = None,
                 now = dev.time() - t0
             if now > duration:
                 break
+            if period is not None:   # slots already missed are skipped, not caught up in a burst
+                k = max(k, math.floor(now / period + 1e-9))
             k += 1
             n1 = dev.counts(a_q1)
             r1 = dev.time() - t0

@@ -384,9 +384,18 @@ class VirtualODrive:
         if self.realtime:
             self._pace()
 
+    def set_realtime(self, on: bool) -> None:
+        """Pace the virtual clock to the wall clock from now on (or stop pacing)."""
+        self.realtime = bool(on)
+        self._t0_wall = _time.monotonic() - self.time
+
+    # the virtual clock may run this far ahead of the wall clock before the host is made to
+    # wait: sleeping for every 0.4 ms transaction would cost more in the OS's sleep overshoot
+    PACE_SLACK = 1e-3
+
     def _pace(self):
         ahead = self.time - (_time.monotonic() - self._t0_wall)
-        if ahead > 0:
+        if ahead > self.PACE_SLACK:
             _time.sleep(ahead)
         elif ahead < -self.twin.dt:
             self._advance(-ahead)
@@ -953,6 +962,12 @@ class VirtualODrive:
         start.AI[0, :, T.I_TRAJ_DONE] = 1
         start.ABORT[...] = 0
         out = self.twin.step_batch(gains, start=start, **kwargs)
+        # the firmware's error flags of the last step stay on the device, as on the real one
+        final = out["final"]
+        self.st.AI[0, :, T.I_AXIS_ERR] |= final.AI[-1, :, T.I_AXIS_ERR]
+        self.st.AI[0, :, T.I_CTRL_ERR] |= final.AI[-1, :, T.I_CTRL_ERR]
+        self.st.AI[0, :, T.I_MOTOR_ERR] |= final.AI[-1, :, T.I_MOTOR_ERR]
+        self.st.AI[0, 0, T.I_SYS_ERR] |= final.AI[-1, 0, T.I_SYS_ERR]
         duration = kwargs.get("duration", 1.5)
         n = len(np.atleast_2d(gains))
         t_now = self.time + n * (duration + 2.0)

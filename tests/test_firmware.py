@@ -10,6 +10,7 @@ import pytest
 from leglib import odrive_io as io
 from leglib import twin as T
 from leglib import virtual_odrive as V
+from leglib.params import load_plant
 
 
 def _device(firmware="0.5.6", brake=True, seed=0, **kw):
@@ -162,11 +163,14 @@ def _just_after_a_millisecond(odrv):
         odrv.sleep(odrv.twin.dt)
 
 
-def test_requested_state_is_consumed_by_the_axis_thread(odrv):
+def test_requested_state_is_consumed_by_the_axis_thread():
     """axis.cpp:447-451 (the axis thread iterates every 1 ms), axis.cpp:455-488 (the request
     is taken up and reset to AXIS_STATE_UNDEFINED), axis.cpp:290-291 with
     controller.cpp:115-128 (closed-loop entry sets input_pos := pos_estimate, so a target
     written before the entry is overwritten)."""
+    # a fast link (0.1 ms per transaction), so that two transactions fit in one iteration
+    odrv = _device(plant=load_plant("default", usb_latency=0.1e-3))
+    _calibrate(odrv)
     ax = odrv.axis0
     _just_after_a_millisecond(odrv)
     ax.requested_state = V.AXIS_STATE_CLOSED_LOOP_CONTROL

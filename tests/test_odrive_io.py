@@ -174,10 +174,12 @@ def test_injected_disconnect_mid_sweep_then_resume(tmp_path):
     io.apply_configuration(d)
     io.calibrate(d)
     real_batch = d.sim.step_batch
+    calls = {"n": 0}
 
     def dies_after_two_batches(*args, **kwargs):
-        if d.sim.disconnect_after is None:
-            d.sim.disconnect_after = d.sim.transactions + 2
+        calls["n"] += 1
+        if calls["n"] == 3:
+            d.sim.lost = True          # the link dies
         return real_batch(*args, **kwargs)
     d.sim.step_batch = dies_after_two_batches
     with pytest.warns(UserWarning, match="could not set IDLE"):
@@ -217,8 +219,8 @@ def test_per_point_and_sweep_paths_agree(dev, tmp_path):
         r = io.step_response(dev, *m.gains)
         assert m.meta["completed"] == r.completed
         n = min(len(r.t), len(m.t))
-        np.testing.assert_allclose(np.radians(m.angle1[:n]), r.q1[:n], atol=2 * one_count)
-        np.testing.assert_allclose(np.radians(m.angle2[:n]), r.q2[:n], atol=2 * one_count)
+        np.testing.assert_allclose(np.radians(m.angle1[:n]), r.q1[:n], atol=4 * one_count)
+        np.testing.assert_allclose(np.radians(m.angle2[:n]), r.q2[:n], atol=4 * one_count)
 
 
 def test_no_06_firmware_on_a_v36():
@@ -266,3 +268,76 @@ def test_context_manager_idles_on_exception(dev):
             dev.set(1, "requested_state", io.AXIS_STATE_CLOSED_LOOP_CONTROL)
             1 / 0
     assert _idle(dev)
+
+
+def test_apply_gains_saved_survive_the_reboot(dev):
+    """Issue 15: apply_gains writes, reads back, saves (main.cpp:159-184 reboots on 0.5.6)
+    and reconnects by serial number; a new connection reads the gains on both axes."""
+    g = (31.0, 0.052, 0.021)
+    boots = dev.sim.boot_count
+    out = io.apply_gains(dev, g, save=True)
+    assert out is dev and dev.sim.boot_count == boots + 1
+    fresh = dev.sim.handle()          # what another connection to the board sees
+    for a in (0, 1):
+        ax = getattr(fresh, f"axis{a}")
+        assert (ax.controller.config.pos_gain, ax.controller.config.vel_gain,
+                ax.controller.config.vel_integrator_gain) == pytest.approx(g)
+    assert not bool(dev.get(0, "is_calibrated"))   # the reboot lost the calibration
+    with pytest.raises(ValueError, match="vel_gain"):
+        io.apply_gains(dev, (30.0, True, 0.01))
+    with pytest.raises(io.ExperimentError, match="not calibrated"):
+        io.step_response(dev, *g)
+
+
+def test_experiments_refuse_what_cannot_work(dev):
+    """Issue 17: sample_period <= 0, >= duration or NaN; booleans as gains; NaN limits; a
+    step below the encoder's resolution."""
+    for bad in (0.0, -0.001, float("nan"), 1.5, 2.0):
+        with pytest.raises(ValueError, match="sample_period"):
+            io.step_response(dev, *STABLE, sample_period=bad)
+    with pytest.raises(ValueError, match="pos_gain"):
+        io.step_response(dev, True, 0.046, 0.001)
+    with pytest.raises(ValueError, match="vel_limit"):
+        io.step_response(dev, *STABLE, vel_limit=float("nan"))
+    with pytest.raises(ValueError, match="resolution"):
+        io.step_response(dev, *STABLE, step=1e-4)
+    with pytest.raises(ValueError, match="period"):
+        io.torque_loop(dev, lambda t, q1, q2: (0.0, 0.0), 0.1, period=0.5)
+    assert _idle(dev)
+
+
+@pytest.mark.parametrize("realtime", [False, True])
+def test_a_step_with_a_firmware_error_is_not_completed(dev, realtime):
+    """low_level.cpp:374-376: with the brake resistor disabled the braking leg trips
+    ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT; the step is then not completed, on the kernel
+    path and on the polling path alike."""
+    dev.raw.config.enable_brake_resistor = False
+    dev.sim.set_realtime(realtime)
+    r = io.step_response(dev, *STABLE, duration=0.5, settle=0.2)
+    assert not r.completed and r.abort_reason
+    assert int(dev.raw.error) & V.ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT
+    assert _idle(dev)
+
+
+def test_live_view_hook_keeps_the_requested_rate_on_the_realtime_twin(dev):
+    """Issue 15: on_sample is called from the paced polling loop of a real-time twin, and a
+    cheap callback does not slow the sampling: the achieved period is within 10 % of the
+    requested one."""
+    dev.sim.set_realtime(True)
+    seen = []
+    r = io.step_response(dev, *STABLE, duration=0.6, sample_period=0.002, settle=0.1,
+                         on_sample=seen.append)
+    assert r.completed
+    assert len(seen) == len(r.t) and set(seen[0]) == {"t", "q1", "q2", "iq", "setpoint"}
+    assert seen[-1]["q1"] == pytest.approx(r.q1[-1]) and seen[0]["setpoint"] is not None
+    # the achieved period: the median interval (a loaded host that loses the CPU for a few
+    # ms skips sample slots; those gaps show in the mean, not in the rate the loop keeps)
+    period = np.median(np.diff(r.t))
+    assert period == pytest.approx(0.002, rel=0.1)
+    dev.sim.set_realtime(False)
+    dev.sleep(2.0)                    # the leg falls back onto its stop
+    dev.sim.set_realtime(True)
+    samples = []
+    run = io.torque_loop(dev, lambda t, q1, q2: (0.0, 0.0), 0.2, period=0.005, on_sample=samples.append)
+    assert len(samples) == len(run.t) and samples[0]["iq"] is not None
+    assert np.median(np.diff(run.t)) == pytest.approx(0.005, rel=0.1)
