@@ -504,60 +504,70 @@ def apply_configuration(dev: Device, config: OdriveConfig | None = None, save: b
 
 
 def calibrate(dev: Device, timeout: float = 60.0, poll: float = 0.1, zero: bool = True) -> None:
-    """Calibrate both axes (Listing 7.2) and wait for it, then zero the joint angles.
+    """Calibrate both axes (Listing 7.2), one after the other, then zero the joint angles.
 
-    Both axes calibrate together: the encoder offset calibration turns each rotor about
-    +-0.73 turn (16 pi electrical rad over 11 pole pairs, encoder.hpp:22; +-87 deg of joint
-    on the 1:3 belt) at ``calibration_current``. Started together from the rest pose, the two
-    upper links swing as one and the stop between them stays closed; the leg must be free to
-    swing that far. A motor with ``motor.config.pre_calibrated`` skips its motor calibration;
-    the encoders (incremental, no index) always need the offset calibration after a boot
+    The encoder offset calibration turns the rotor about +-0.73 turn (16 pi electrical rad
+    over 11 pole pairs, encoder.hpp:22; +-87 deg of joint on the 1:3 belt) at
+    ``calibration_current``; the leg must be free to swing that far. The axes go one at a
+    time: the idle link is carried along through the stop between the links, whereas two
+    simultaneous locks can squeeze the links against their stop (each rotor jumps to its
+    nearest electrical alignment, up to 1/22 turn, 5.5 deg of joint) and the two scans then
+    fight. A motor with ``motor.config.pre_calibrated`` skips its motor calibration; the
+    encoders (incremental, no index) always need the offset calibration after a boot
     (encoder.cpp:19-30,130-138).
 
-    With ``zero`` the leg is left to settle on its stop and :func:`zero_joints` defines the
-    joint angles there (the calibration re-references the counts, encoder.cpp:344).
+    With ``zero`` the joint angles are defined at the rest pose from ``pos_estimate``: read
+    before the calibration (the leg resting on its stop, as :func:`zero_joints` does) and
+    carried through the calibration's re-referencing of the counts (encoder.cpp:344 shifts
+    them by whole turns, found from the positions before and after). A leg that calibration
+    left at rest within the friction dead band (about 1 deg here) would give a zero that far
+    off; the pose before calibration is the one the leg settled into undisturbed. When the
+    leg does not come back to within 0.05 turn of that pose, it is zeroed where it rests
+    after calibration instead (with a warning).
 
     Raises ExperimentError naming the axis and its error flags when calibration fails, and
-    when it does not finish within ``timeout`` s (device and wall clock).
+    when an axis does not finish within ``timeout`` s (device and wall clock).
     """
     dev = as_device(dev)
-    if not (isinstance(timeout, (int, float)) and math.isfinite(timeout) and timeout > 0):
+    if isinstance(timeout, bool) or not (isinstance(timeout, (int, float)) and math.isfinite(timeout) and timeout > 0):
         raise ValueError(f"timeout must be a positive number of seconds, got {timeout!r}")
+    before = _rest_positions(dev) if zero else None
     with safe(dev):
         for a in (0, 1):
             if int(dev.get(a, "error")):
                 raise ExperimentError(f"axis{a} has an error before calibration: {_error_text(dev, a)}; "
                                       f"inspect it, then call leglib.odrive_io.clear_errors(odrv)")
-        motor_ok = all(bool(dev.get(a, "is_calibrated")) for a in (0, 1))
-        request = AXIS_STATE_ENCODER_OFFSET_CALIBRATION if motor_ok else AXIS_STATE_FULL_CALIBRATION_SEQUENCE
         for a in (0, 1):
+            request = (AXIS_STATE_ENCODER_OFFSET_CALIBRATION if bool(dev.get(a, "is_calibrated"))
+                       else AXIS_STATE_FULL_CALIBRATION_SEQUENCE)
             dev.set(a, "requested_state", request)
-        deadline = _Deadline(dev, timeout, "calibration")
-        while True:
-            dev.sleep(poll)
-            pending = [int(dev.get(a, "requested_state")) for a in (0, 1)]
-            states = [int(dev.get(a, "current_state")) for a in (0, 1)]
-            if all(p == AXIS_STATE_UNDEFINED for p in pending) and all(s == AXIS_STATE_IDLE for s in states):
-                break
-            deadline.check(f" (states {states})")
-        for a in (0, 1):
+            deadline = _Deadline(dev, timeout, f"calibration of axis{a}")
+            while True:
+                dev.sleep(poll)
+                if int(dev.get(a, "requested_state")) == AXIS_STATE_UNDEFINED \
+                        and int(dev.get(a, "current_state")) == AXIS_STATE_IDLE:
+                    break
+                deadline.check(f" (state {int(dev.get(a, 'current_state'))})")
             if int(dev.get(a, "error")) or not bool(dev.get(a, "is_ready")):
                 raise ExperimentError(f"axis{a} calibration failed: {_error_text(dev, a)} "
                                       f"(check cpr and pole_pairs against the hardware, and that the "
                                       f"leg can swing freely)")
     if zero:
-        zero_joints(dev)
+        after = _rest_positions(dev)
+        shift = np.round(after - before)   # whole turns: the counts' re-reference
+        if np.all(np.abs(after - before - shift) < 0.05):
+            dev.axes = dev.axes.zeroed(before + shift)
+        else:
+            warnings.warn(f"the leg did not come back to its rest pose after calibration (moved "
+                          f"{np.round(after - before - shift, 3)} turn): zeroed where it rests now",
+                          stacklevel=2)
+            dev.axes = dev.axes.zeroed(after)
 
 
-def zero_joints(odrv, settle: float = 1.0, max_speed: float = 0.01) -> tuple[float, float]:
-    """Define the joint angles: with both axes IDLE and the leg resting on its stop (the
-    rest pose, q = leg.q0, thesis 5.3), read ``pos_estimate`` of both motors and take it as
-    the rest pose (Listing 7.4 zeroes its angles at the start in the same way).
-
-    Waits ``settle`` s first; refuses when a motor still turns faster than ``max_speed``
-    turn/s. Returns the motor positions [turn] (joint 0's motor, joint 1's motor).
-    """
-    dev = as_device(odrv)
+def _rest_positions(dev: Device, settle: float = 1.0, max_speed: float = 0.01) -> np.ndarray:
+    """Motor positions [turn] (joint 0's motor, joint 1's motor) of the leg at rest: both
+    axes IDLE, ``settle`` s, then the mean of a few ``pos_estimate`` readings; refused while
+    a motor still turns faster than ``max_speed`` turn/s."""
     with safe(dev):
         _wait_states(dev, (0, 1), AXIS_STATE_IDLE, what="going IDLE before zeroing")
         dev.sleep(settle)
@@ -574,9 +584,23 @@ def zero_joints(odrv, settle: float = 1.0, max_speed: float = 0.01) -> tuple[flo
             if v > max_speed:
                 raise ExperimentError(f"axis{a} still turns at {v:.3f} turn/s: the leg is not at rest; "
                                       f"zeroing needs it resting on its stop")
-        turns = (float(p1[0]), float(p1[1]))
+    return p1
+
+
+def zero_joints(odrv, settle: float = 1.0, max_speed: float = 0.01) -> tuple[float, float]:
+    """Define the joint angles: with both axes IDLE and the leg resting on its stop (the
+    rest pose, q = leg.q0, thesis 5.3), read ``pos_estimate`` of both motors and take it as
+    the rest pose (Listing 7.4 zeroes its angles at the start in the same way).
+
+    Waits ``settle`` s first; refuses when a motor still turns faster than ``max_speed``
+    turn/s. Returns the motor positions [turn] (joint 0's motor, joint 1's motor). The
+    leg rests anywhere within its friction dead band (about 1 deg of joint here): that is
+    the accuracy of the zero.
+    """
+    dev = as_device(odrv)
+    turns = _rest_positions(dev, settle, max_speed)
     dev.axes = dev.axes.zeroed(turns)
-    return turns
+    return float(turns[0]), float(turns[1])
 
 
 def apply_gains(odrv, gains, save: bool = True, timeout: float = 10.0):

@@ -42,19 +42,19 @@ INPUT_MODE_INACTIVE, INPUT_MODE_PASSTHROUGH, INPUT_MODE_POS_FILTER, INPUT_MODE_T
  C_INPUT_POS, C_INPUT_VEL, C_INPUT_TORQUE, C_WD_TIMEOUT, C_CURRENT_BW, C_ENCODER_BW,
  C_ABORT_ERROR, C_WD_ENABLE, C_COUNT_OFFSET, C_VEL_INT_LIMIT, C_INPUT_MODE, C_FILTER_BW,
  C_TT_XI, C_TT_XF, C_TT_VI, C_TT_AR, C_TT_VR, C_TT_DR, C_TT_TA, C_TT_TV, C_TT_TD, C_TT_YACC,
- C_CAL_VEL, C_CAL_CURRENT, C_INT_RESET_TORQUE) = range(32)
+ C_CAL_VEL, C_CAL_CURRENT, C_INT_RESET_TORQUE, C_CAL_RAMP) = range(33)
 # system (board) configuration, kept in the slots of axis 0: C[b, 0, k]
-(C_BRAKE_ON, C_BRAKE_R, C_MAX_REGEN, C_DC_MAX_POS, C_DC_MAX_NEG, C_VBUS, C_REGEN_ERR_STYLE) = range(32, 39)
-N_CFG = 39
+(C_BRAKE_ON, C_BRAKE_R, C_MAX_REGEN, C_DC_MAX_POS, C_DC_MAX_NEG, C_VBUS, C_REGEN_ERR_STYLE) = range(33, 40)
+N_CFG = 40
 # float state per axis: AS[b, axis, k]
 S_POS_EST, S_VEL_EST, S_INTEGRATOR, S_IQ, S_WD_TIMER, S_IQ_MEAS = range(6)
 S_OSC = 6           # N_OSC slots of the oscillation monitor (see oscillation_update)
 N_OSC = 6
 S_COUNT_F = S_OSC + N_OSC  # the encoder reading as a float (equal to the counts when quantized)
-(S_POS_SP, S_VEL_SP, S_TQ_SP, S_TT_T, S_CAL_POS, S_IBUS_MOTOR) = range(S_COUNT_F + 1, S_COUNT_F + 7)
+(S_POS_SP, S_VEL_SP, S_TQ_SP, S_TT_T, S_CAL_POS, S_IBUS_MOTOR, S_CAL_I) = range(S_COUNT_F + 1, S_COUNT_F + 8)
 # system state in the slots of axis 0: the reported bus current and the brake current [A]
-S_IBUS, S_BRAKE_I = S_COUNT_F + 7, S_COUNT_F + 8
-N_AXSTATE = S_COUNT_F + 9
+S_IBUS, S_BRAKE_I = S_COUNT_F + 8, S_COUNT_F + 9
+N_AXSTATE = S_COUNT_F + 10
 # int state per axis: AI[b, axis, k]; I_SYS_ERR is the board's error (odrv.error), on axis 0
 I_MODE, I_AXIS_ERR, I_CTRL_ERR, I_MOTOR_ERR, I_COUNTS, I_TRAJ_DONE, I_SYS_ERR = range(7)
 N_AXINT = 7
@@ -242,14 +242,20 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
                 # open-loop lock/scan at calibration_current (encoder.cpp:328-461): the
                 # rotor follows the electrical angle through a torque ~ sin(pole_pairs * error)
                 AS[b, a, S_CAL_POS] += C[b, a, C_CAL_VEL] * dt
+                # the current ramps towards calibration_current at C_CAL_RAMP [A/s]
+                i_tgt = C[b, a, C_CAL_CURRENT]
+                step_i = C[b, a, C_CAL_RAMP] * dt
+                i_now = AS[b, a, S_CAL_I]
+                i_now = min(i_now + step_i, i_tgt) if i_now < i_tgt else max(i_now - step_i, i_tgt)
+                AS[b, a, S_CAL_I] = i_now
                 pp = DRV[10]
-                iq = C[b, a, C_CAL_CURRENT] * math.sin(two_pi * pp * (AS[b, a, S_CAL_POS] - turns))
+                iq = i_now * math.sin(two_pi * pp * (AS[b, a, S_CAL_POS] - turns))
                 AS[b, a, S_IQ] = iq
                 AS[b, a, S_IQ_MEAS] = iq + cur_noise * _normal(RNG, b)
                 AS[b, a, S_INTEGRATOR] = 0.0
                 tau[j] = dirn * N * DRV[8] * iq
                 w = AS[b, a, S_VEL_EST] * two_pi
-                ib = (1.5 * DRV[11] * C[b, a, C_CAL_CURRENT] ** 2 + DRV[8] * iq * w) / C[b, 0, C_VBUS]
+                ib = (1.5 * DRV[11] * i_now ** 2 + DRV[8] * iq * w) / C[b, 0, C_VBUS]
                 AS[b, a, S_IBUS_MOTOR] = ib
                 ibus_sum += ib
                 continue

@@ -82,6 +82,11 @@ OFFSET_LOCK_TIME = 1.0           # encoder.cpp:329 start_lock_duration
 CALIB_SCAN_DISTANCE = 16 * math.pi   # encoder.hpp:22 [rad electrical]
 CALIB_SCAN_OMEGA = 4 * math.pi       # encoder.hpp:23 [rad/s electrical]
 CALIB_RANGE = 0.02                   # encoder.hpp:21
+# how fast the calibration current builds up: the offset calibration ramps at
+# 2 * calibration_current per second (encoder.cpp:353); the resistance measurement's voltage
+# integrator (kI = 1 V/s/A, motor.cpp:71) reaches the current with a time constant R / kI
+# (0.07 s for this motor), taken here as a linear ramp over 3 time constants
+OFFSET_RAMP_PER_A = 2.0
 # a full calibration sequence (motor, then encoder offset) from request to IDLE
 CALIBRATION_DURATION = (R_MEASUREMENT_TIME + L_MEASUREMENT_TIME + OFFSET_LOCK_TIME
                         + 2 * CALIB_SCAN_DISTANCE / CALIB_SCAN_OMEGA)
@@ -179,7 +184,7 @@ _AXIS_CONFIG_KEYS = ("control_mode", "cpr", "pole_pairs", "motor_type", "motor_p
                      "startup_encoder_offset_calibration", "startup_closed_loop_control")
 # slots of the kernel's C array that are volatile (inputs, leglib's abort bound, state)
 _C_VOLATILE = (T.C_INPUT_POS, T.C_INPUT_VEL, T.C_INPUT_TORQUE, T.C_ABORT_ERROR, T.C_COUNT_OFFSET,
-               T.C_CAL_VEL) + tuple(range(T.C_TT_XI, T.C_TT_YACC + 1))
+               T.C_CAL_VEL, T.C_CAL_RAMP) + tuple(range(T.C_TT_XI, T.C_TT_YACC + 1))
 
 
 class VirtualODrive:
@@ -216,7 +221,8 @@ class VirtualODrive:
         self.saved_configuration = None
         self._rng = np.random.default_rng(seed)
         # where electrical angle 0 holds each rotor, as a fraction of a pole pitch (the
-        # magnets' offset to the encoder at power-up is arbitrary)
+        # magnets' offset to the encoder at power-up is arbitrary: the lock makes the rotor
+        # jump by up to half a pitch, 5.5 deg of joint)
         self._magnet_offset = self._rng.random(2)
         self.st = self.twin.rest_state()
         self._pending = 0.0
@@ -536,6 +542,8 @@ class VirtualODrive:
             return self._fail(a)
         st.AS[0, a, T.S_CAL_POS] = self._lock_position(a)
         st.C[0, a, T.C_CAL_VEL] = 0.0
+        st.AS[0, a, T.S_CAL_I] = 0.0
+        st.C[0, a, T.C_CAL_RAMP] = st.C[0, a, T.C_CAL_CURRENT] / (3.0 * self.twin.motor.phase_resistance / 1.0)
         st.AI[0, a, T.I_MODE] = T.MODE_CALIB
         ax["motor_calibrated"] = False
         ax["phase"], ax["phase_end"] = "resistance", self.time + R_MEASUREMENT_TIME
@@ -557,6 +565,8 @@ class VirtualODrive:
             return self._fail(a)
         st.AS[0, a, T.S_CAL_POS] = self._lock_position(a)   # phase wrap(-8 pi) = 0
         st.C[0, a, T.C_CAL_VEL] = 0.0
+        st.AS[0, a, T.S_CAL_I] = 0.0
+        st.C[0, a, T.C_CAL_RAMP] = OFFSET_RAMP_PER_A * st.C[0, a, T.C_CAL_CURRENT]
         st.AI[0, a, T.I_MODE] = T.MODE_CALIB
         ax["phase"], ax["phase_end"] = "lock", self.time + OFFSET_LOCK_TIME
 

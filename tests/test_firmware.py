@@ -251,7 +251,7 @@ def test_calibration_that_never_finishes_fails_with_a_message(monkeypatch):
     dev = io.connect("virtual", seed=6)
     io.apply_configuration(dev)
     monkeypatch.setattr(dev.sim, "sleep", lambda s: None)     # a frozen virtual clock
-    with pytest.raises(io.ExperimentError, match="calibration did not finish"):
+    with pytest.raises(io.ExperimentError, match="calibration of axis0 did not finish"):
         io.calibrate(dev, timeout=0.5)
 
 
