@@ -2,13 +2,18 @@
 
 ``connect(backend="virtual" | "usb")`` returns a :class:`Device`: the ODrive's object tree
 (``dev.axis0.controller.config.pos_gain`` works as on the device) plus what experiments
-need: firmware-independent property access (0.5.x and 0.6.x names), the leg's unit
-conversions, a clock and a sleep that work on both backends, and fail-safe idling.
+need: property access by logical name (firmware 0.5.1 to 0.5.6; the v3.6 has no 0.6
+firmware), the leg's unit conversions and zeroing, a clock and a sleep that work on both
+backends, and fail-safe idling.
 
-Experiments (the thesis listings, done properly): :func:`apply_configuration` (7.1),
-:func:`calibrate` (7.2), :func:`play_torque_table` (7.3), :func:`step_response` and
-:func:`sweep` (7.4). Every one leaves both axes IDLE, on normal exit, on any exception and
-on KeyboardInterrupt.
+Experiments (the thesis listings, done the firmware's way): :func:`apply_configuration`
+(7.1; enables the brake resistor, saves, survives the reboot), :func:`calibrate` (7.2; one
+axis at a time, then the zeroing), :func:`play_torque_table` (7.3), :func:`step_response`
+and :func:`sweep` (7.4), :func:`apply_gains`. Each waits for the axes to take up a requested
+state, feeds the watchdog before enabling it, refuses to start on a flagged error (see
+:func:`errors`, :func:`clear_errors`), and leaves both axes IDLE, on normal exit, on any
+exception and on KeyboardInterrupt. Waits are bounded on the device's clock and on the
+wall clock.
 """
 
 from __future__ import annotations
