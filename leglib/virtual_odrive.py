@@ -268,19 +268,17 @@ class VirtualODrive:
 
     def _config_snapshot(self) -> dict:
         C = self.st.C[0].copy()
+        C[:, list(_C_VOLATILE)] = 0.0          # inputs and state are not configuration
         return {"C": C, "axes": [{k: ax[k] for k in _AXIS_CONFIG_KEYS} for ax in self._axis],
                 "board": dict(self._board)}
 
     def _boot(self):
         """Power-up or reset: volatile state from scratch, the saved configuration loaded."""
         saved = self.saved_configuration if self.saved_configuration is not None else self._factory
-        if True:
-            keep = self.st.C[0, :, list(_C_VOLATILE)].copy()
-            self.st.C[0] = saved["C"]
-            self.st.C[0, :, list(_C_VOLATILE)] = keep
-            for ax, cfg in zip(self._axis, saved["axes"]):
-                ax.update(cfg)
-            self._board.update(saved["board"])
+        self.st.C[0] = saved["C"]
+        for ax, cfg in zip(self._axis, saved["axes"]):
+            ax.update(cfg)
+        self._board.update(saved["board"])
         st = self.st
         st.AI[0, :, :] = 0
         st.AI[0, :, T.I_TRAJ_DONE] = 1
