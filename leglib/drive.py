@@ -2,12 +2,17 @@
 
 ODrive-native units exist only here and in the code that talks to a device. The wiring
 comes from the leg file's ``[drive]`` section: which axis drives which joint, the belt
-ratio, the encoder resolution, and the sign relating motor turns to joint angles. Motor
-position zero is the leg at rest (the operating point), where the encoders power up.
+ratio, the encoder resolution, and the sign relating motor turns to joint angles. ``zero`` holds the motor positions [turn]
+read at the rest pose (the operating point): the encoders are incremental and the firmware
+re-references their counts during calibration (fw-v0.5.6 encoder.cpp:344), so joint angles
+are defined by a zeroing step (:func:`leglib.odrive_io.zero_joints`, Listing 7.4's "zero the
+angles at the start"), not by the counts themselves. Before zeroing, ``zero`` is (0, 0): the
+rest pose where the encoders powered up.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -26,7 +31,9 @@ class AxisMap:
     cpr : encoder counts per motor turn
     direction : +1/-1, sign of motor turns per joint angle
     axis_of_joint : (axis driving q1, axis driving q2)
-    q_rest : (q1, q2) [rad] at motor position zero
+    q_rest : (q1, q2) [rad] at the rest pose
+    zero : (turns of the motor driving q1, of the motor driving q2) [turn] read at the rest
+        pose; (0, 0) until a zeroing step sets it
     """
 
     gear_ratio: float
@@ -34,6 +41,7 @@ class AxisMap:
     direction: int
     axis_of_joint: tuple[int, int]
     q_rest: tuple[float, float]
+    zero: tuple[float, float] = (0.0, 0.0)
 
     @classmethod
     def from_leg(cls, leg: LegParams) -> "AxisMap":
@@ -46,11 +54,21 @@ class AxisMap:
 
     def motor_turns(self, q, joint: int):
         """Motor position [turn] for joint angle ``q`` [rad] of joint 0 (q1) or 1 (q2)."""
-        return self.direction * (np.asarray(q) - self.q_rest[joint]) * self.gear_ratio / (2 * math.pi)
+        return (self.direction * (np.asarray(q) - self.q_rest[joint]) * self.gear_ratio / (2 * math.pi)
+                + self.zero[joint])
 
     def joint_angle(self, turns, joint: int):
         """Joint angle [rad] for motor position ``turns`` [turn]."""
-        return self.q_rest[joint] + self.direction * np.asarray(turns, dtype=float) * 2 * math.pi / self.gear_ratio
+        return self.q_rest[joint] + self.direction * (np.asarray(turns, dtype=float) - self.zero[joint]) \
+            * 2 * math.pi / self.gear_ratio
+
+    def zeroed(self, turns_at_rest) -> "AxisMap":
+        """A copy whose rest pose is where the motors read ``turns_at_rest`` (joint 0's
+        motor, joint 1's motor) [turn]."""
+        z = tuple(float(x) for x in turns_at_rest)
+        if len(z) != 2 or not all(math.isfinite(x) for x in z):
+            raise ValueError(f"turns_at_rest must be two finite motor positions [turn], got {turns_at_rest!r}")
+        return dataclasses.replace(self, zero=z)
 
     def counts_to_joint(self, counts, joint: int):
         """Joint angle [rad] for encoder ``counts``."""

@@ -2,13 +2,18 @@
 
 ``connect(backend="virtual" | "usb")`` returns a :class:`Device`: the ODrive's object tree
 (``dev.axis0.controller.config.pos_gain`` works as on the device) plus what experiments
-need: firmware-independent property access (0.5.x and 0.6.x names), the leg's unit
-conversions, a clock and a sleep that work on both backends, and fail-safe idling.
+need: property access by logical name (firmware 0.5.1 to 0.5.6; the v3.6 has no 0.6
+firmware), the leg's unit conversions and zeroing, a clock and a sleep that work on both
+backends, and fail-safe idling.
 
-Experiments (the thesis listings, done properly): :func:`apply_configuration` (7.1),
-:func:`calibrate` (7.2), :func:`play_torque_table` (7.3), :func:`step_response` and
-:func:`sweep` (7.4). Every one leaves both axes IDLE, on normal exit, on any exception and
-on KeyboardInterrupt.
+Experiments (the thesis listings, done the firmware's way): :func:`apply_configuration`
+(7.1; enables the brake resistor, saves, survives the reboot), :func:`calibrate` (7.2; one
+axis at a time, then the zeroing), :func:`play_torque_table` (7.3), :func:`step_response`
+and :func:`sweep` (7.4), :func:`apply_gains`. Each waits for the axes to take up a requested
+state, feeds the watchdog before enabling it, refuses to start on a flagged error (see
+:func:`errors`, :func:`clear_errors`), and leaves both axes IDLE, on normal exit, on any
+exception and on KeyboardInterrupt. Waits are bounded on the device's clock and on the
+wall clock.
 """
 
 from __future__ import annotations
@@ -28,38 +33,41 @@ from .drive import AxisMap
 from .model import foot_position
 from .params import LegParams, OdriveConfig, load_leg, load_odrive_config
 
+AXIS_STATE_UNDEFINED = 0
 AXIS_STATE_IDLE = 1
 AXIS_STATE_FULL_CALIBRATION_SEQUENCE = 3
+AXIS_STATE_ENCODER_OFFSET_CALIBRATION = 7
 AXIS_STATE_CLOSED_LOOP_CONTROL = 8
 CONTROL_MODE_TORQUE, CONTROL_MODE_VELOCITY, CONTROL_MODE_POSITION = 1, 2, 3
 INPUT_MODE_PASSTHROUGH = 1
 
-# logical property -> path below an axis, per firmware line. None: not available.
-_COMMON = {
-    "requested_state": "requested_state", "current_state": "current_state", "error": "error",
-    "control_mode": "controller.config.control_mode", "input_mode": "controller.config.input_mode",
-    "pos_gain": "controller.config.pos_gain", "vel_gain": "controller.config.vel_gain",
-    "vel_integrator_gain": "controller.config.vel_integrator_gain",
-    "vel_limit": "controller.config.vel_limit", "input_pos": "controller.input_pos",
-    "input_vel": "controller.input_vel", "input_torque": "controller.input_torque",
-    "controller_error": "controller.error", "motor_error": "motor.error",
-    "enable_watchdog": "config.enable_watchdog", "watchdog_timeout": "config.watchdog_timeout",
-}
+# logical property -> path below an axis (firmware 0.5.x endpoint names); the third item of
+# a tuple entry is the first firmware revision that has it
 PROPERTY_PATHS = {
-    "0.5": {**_COMMON,
-            "pos_estimate": "encoder.pos_estimate", "vel_estimate": "encoder.vel_estimate",
-            "shadow_count": "encoder.shadow_count", "cpr": "encoder.config.cpr",
-            "current_lim": "motor.config.current_lim", "torque_constant": "motor.config.torque_constant",
-            "pole_pairs": "motor.config.pole_pairs", "motor_type": "motor.config.motor_type",
-            "Iq_measured": "motor.current_control.Iq_measured"},
-    "0.6": {**_COMMON,
-            "pos_estimate": "pos_estimate", "vel_estimate": "vel_estimate",
-            "shadow_count": None, "cpr": None,
-            "current_lim": "config.motor.current_soft_max",
-            "torque_constant": "config.motor.torque_constant",
-            "pole_pairs": "config.motor.pole_pairs", "motor_type": "config.motor.motor_type",
-            "Iq_measured": "motor.foc.Iq_measured"},
+    "0.5": {
+        "requested_state": "requested_state", "current_state": "current_state", "error": "error",
+        "control_mode": "controller.config.control_mode", "input_mode": "controller.config.input_mode",
+        "pos_gain": "controller.config.pos_gain", "vel_gain": "controller.config.vel_gain",
+        "vel_integrator_gain": "controller.config.vel_integrator_gain",
+        "vel_integrator_limit": ("controller.config.vel_integrator_limit", 4),
+        "input_filter_bandwidth": "controller.config.input_filter_bandwidth",
+        "vel_limit": "controller.config.vel_limit", "input_pos": "controller.input_pos",
+        "input_vel": "controller.input_vel", "input_torque": "controller.input_torque",
+        "controller_error": "controller.error", "motor_error": "motor.error",
+        "encoder_error": "encoder.error",
+        "enable_watchdog": "config.enable_watchdog", "watchdog_timeout": "config.watchdog_timeout",
+        "pos_estimate": "encoder.pos_estimate", "vel_estimate": "encoder.vel_estimate",
+        "shadow_count": "encoder.shadow_count", "cpr": "encoder.config.cpr",
+        "is_ready": "encoder.is_ready", "is_calibrated": "motor.is_calibrated",
+        "current_lim": "motor.config.current_lim", "torque_constant": "motor.config.torque_constant",
+        "pole_pairs": "motor.config.pole_pairs", "motor_type": "motor.config.motor_type",
+        "calibration_current": "motor.config.calibration_current",
+        "motor_pre_calibrated": "motor.config.pre_calibrated",
+        "Iq_measured": "motor.current_control.Iq_measured"},
 }
+# how long leglib waits for the axis thread to take up a requested state (it does so within
+# about 1 ms, fw-v0.5.6 axis.cpp:447-488) [s]
+STATE_TIMEOUT = 2.0
 
 
 class DeviceNotFoundError(RuntimeError):
@@ -107,23 +115,38 @@ class Device:
         return getattr(self.raw, f"axis{a}")
 
     def _path(self, key: str) -> list[str]:
+        table = PROPERTY_PATHS.get(self.firmware)
+        if table is None:
+            raise ExperimentError(f"firmware {self.firmware}.x is not an ODrive v3.6 firmware: the v3.6 runs "
+                                  f"0.5.x (0.6.x is for ODrive Pro, S1 and Micro)")
         try:
-            path = PROPERTY_PATHS[self.firmware][key]
+            path = table[key]
         except KeyError:
-            raise KeyError(f"unknown ODrive property {key!r}; known: {sorted(PROPERTY_PATHS['0.5'])}") from None
-        if path is None:
-            raise ExperimentError(f"property {key!r} does not exist on firmware {self.firmware}.x")
+            raise KeyError(f"unknown ODrive property {key!r}; known: {sorted(table)}") from None
+        if isinstance(path, tuple):
+            path, since = path
+            if self.firmware_version[2] < since:
+                raise ExperimentError(f"property {key!r} ({path}) does not exist on firmware "
+                                      f"{'.'.join(map(str, self.firmware_version))} (0.5.{since}+)")
         return path.split(".")
 
+    def has(self, key: str) -> bool:
+        """True when this firmware has the logical property ``key``."""
+        try:
+            self._path(key)
+        except ExperimentError:
+            return False
+        return True
+
     def get(self, a: int, key: str):
-        """Read an axis property by logical name (firmware-independent)."""
+        """Read an axis property by logical name."""
         node = self.axis(a)
         for part in self._path(key):
             node = getattr(node, part)
         return node
 
     def set(self, a: int, key: str, value) -> None:
-        """Write an axis property by logical name (firmware-independent)."""
+        """Write an axis property by logical name."""
         *head, last = self._path(key)
         node = self.axis(a)
         for part in head:
@@ -131,10 +154,31 @@ class Device:
         setattr(node, last, value)
 
     def counts(self, a: int) -> int:
-        """Encoder counts of axis ``a`` (0.6 has no shadow_count: from pos_estimate)."""
-        if self.firmware == "0.5":
-            return int(self.get(a, "shadow_count"))
-        return int(round(float(self.get(a, "pos_estimate")) * self.axes.cpr))
+        """Encoder counts (``shadow_count``) of axis ``a``."""
+        return int(self.get(a, "shadow_count"))
+
+    @property
+    def sim(self):
+        """The :class:`leglib.virtual_odrive.VirtualODrive` behind this device (its clock,
+        twin and whole-experiment runner), or None for a real ODrive."""
+        s = self.__dict__.get("_sim")
+        if s is not None:
+            return s
+        from .virtual_odrive import VirtualODrive
+        return self.__dict__["raw"] if isinstance(self.__dict__.get("raw"), VirtualODrive) else None
+
+    @sim.setter
+    def sim(self, value):
+        self.__dict__["_sim"] = value
+
+    def rebind(self, odrv) -> None:
+        """Use the object tree ``odrv`` of a new connection to the same ODrive (after a
+        reboot); the leg, configuration and zeroing stay."""
+        serial = int(odrv.serial_number)
+        known = self.__dict__.get("serial_number_at_connect")
+        if known is not None and serial != known:
+            raise ExperimentError(f"reconnected to ODrive {serial:012X}, expected {known:012X}")
+        self.__dict__["raw"] = odrv
 
     # -- time --------------------------------------------------------------------------
     def time(self) -> float:
@@ -151,14 +195,29 @@ class Device:
             time.sleep(seconds)
 
     # -- safety ------------------------------------------------------------------------
-    def idle_all(self) -> list[str]:
-        """Request IDLE on both axes; returns the failures (never raises)."""
+    def idle_all(self, confirm: float = 0.05) -> list[str]:
+        """Request IDLE on both axes and wait up to ``confirm`` s (device and wall clock) until
+        both report it (the axis thread takes a request up within about 1 ms); returns the
+        failures (never raises)."""
         failures = []
         for a in (0, 1):
             try:
                 self.set(a, "requested_state", AXIS_STATE_IDLE)
             except Exception as exc:  # the link may be gone: the watchdog must then act
                 failures.append(f"axis{a}: {type(exc).__name__}: {exc}")
+        if not failures:
+            try:
+                t_dev, t_wall = self.time() + confirm, time.monotonic() + max(confirm, 0.5)
+                while True:
+                    if all(int(self.get(a, "requested_state")) == AXIS_STATE_UNDEFINED
+                           and int(self.get(a, "current_state")) == AXIS_STATE_IDLE for a in (0, 1)):
+                        break
+                    if self.time() > t_dev or time.monotonic() > t_wall:
+                        failures.append("IDLE requested but not confirmed by both axes")
+                        break
+                    self.sleep(0.0005)
+            except Exception as exc:  # noqa: BLE001 - never raise from the safety path
+                failures.append(f"confirming IDLE: {type(exc).__name__}: {exc}")
         if failures:
             warnings.warn("could not set IDLE: " + "; ".join(failures) +
                           " -- the ODrive's watchdog idles the motors when the link is lost", stacklevel=2)
@@ -187,11 +246,21 @@ class Device:
 
 @contextlib.contextmanager
 def safe(dev: Device):
-    """Both axes IDLE when the block ends: normally, on an exception, on KeyboardInterrupt."""
+    """Both axes IDLE when the block ends: normally, on an exception, on KeyboardInterrupt.
+
+    Once both are IDLE the watchdog is switched off again: it counts down in IDLE too
+    (axis.cpp:171-182) and, unfed, would flag an error that blocks the next experiment.
+    When the link is gone it stays on, which is what stops the motors then.
+    """
     try:
         yield dev
     finally:
-        dev.idle_all()
+        if not dev.idle_all():
+            for a in (0, 1):
+                try:
+                    dev.set(a, "enable_watchdog", False)
+                except Exception:  # noqa: BLE001 - never raise from the safety path
+                    pass
 
 
 # ---------------------------------------------------------------------------------------
@@ -276,8 +345,135 @@ def as_device(odrv, leg: str | LegParams = "thesis", config: str | OdriveConfig 
 # Listing 7.1, 7.2: configuration and calibration
 # ---------------------------------------------------------------------------------------
 
+class _Deadline:
+    """A time limit on the device's clock and on the wall clock: a virtual clock that stops
+    (a plant that never finishes) cannot make a wait loop forever."""
+
+    def __init__(self, dev: Device, seconds: float, what: str, wall_seconds: float | None = None):
+        self.dev, self.what, self.seconds = dev, what, seconds
+        self.t_dev = dev.time() + seconds
+        self.t_wall = time.monotonic() + (seconds if wall_seconds is None else wall_seconds)
+
+    def expired(self) -> bool:
+        return self.dev.time() > self.t_dev or time.monotonic() > self.t_wall
+
+    def check(self, detail: str = "") -> None:
+        if self.expired():
+            raise ExperimentError(f"{self.what} did not finish within {self.seconds:g} s{detail}: "
+                                  f"axes set IDLE")
+
+
+def _wait_states(dev: Device, axes, state: int, timeout: float = STATE_TIMEOUT, poll: float = 0.0005,
+                 what: str | None = None) -> None:
+    """Wait until every axis in ``axes`` has taken up its request and is in ``state``; raise
+    ExperimentError naming the axis, its state and errors when it drops to IDLE instead or
+    the time runs out."""
+    deadline = _Deadline(dev, timeout, what or f"entering state {state}")
+    while True:
+        # the request first: once it reads 0 it has been taken up, and the state read after it
+        # is the new one
+        pending = {a: int(dev.get(a, "requested_state")) for a in axes}
+        states = {a: int(dev.get(a, "current_state")) for a in axes}
+        if all(states[a] == state and pending[a] == AXIS_STATE_UNDEFINED for a in axes):
+            return
+        for a in axes:
+            if pending[a] == AXIS_STATE_UNDEFINED and states[a] == AXIS_STATE_IDLE and state != AXIS_STATE_IDLE:
+                raise ExperimentError(f"axis{a} did not enter state {state} (it is IDLE): "
+                                      f"{_error_text(dev, a)}")
+        deadline.check(f" (states {states})")
+        dev.sleep(poll)
+
+
+def _error_text(dev: Device, a: int) -> str:
+    parts = [f"axis{a}.error = 0x{int(dev.get(a, 'error')):x}",
+             f"motor.error = 0x{int(dev.get(a, 'motor_error')):x}",
+             f"encoder.error = 0x{int(dev.get(a, 'encoder_error')):x}",
+             f"controller.error = 0x{int(dev.get(a, 'controller_error')):x}"]
+    if _has_system_error(dev):
+        parts.append(f"odrv.error = 0x{int(dev.raw.error):x}")
+    return ", ".join(parts)
+
+
+def _has_system_error(dev: Device) -> bool:
+    """Firmware 0.5.2+ keeps board errors in ``odrv.error`` (main.cpp:313-320)."""
+    return dev.firmware_version[:2] == (0, 5) and dev.firmware_version[2] >= 2
+
+
+def errors(odrv) -> dict:
+    """All error flags: ``{"odrv": int or None, "axis0": {...}, "axis1": {...}}``."""
+    dev = as_device(odrv)
+    out = {"odrv": int(dev.raw.error) if _has_system_error(dev) else None}
+    for a in (0, 1):
+        out[f"axis{a}"] = {k: int(dev.get(a, k)) for k in ("error", "motor_error", "encoder_error",
+                                                          "controller_error")}
+    return out
+
+
+def _any_error(dev: Device) -> bool:
+    e = errors(dev)
+    return bool(e["odrv"]) or any(v for a in (0, 1) for v in e[f"axis{a}"].values())
+
+
+def _reconnect(dev: Device, timeout: float = 10.0):
+    """A new connection to the same ODrive after it rebooted, found by serial number.
+    Returns the new object tree (give it to :meth:`Device.rebind`)."""
+    serial = dev.__dict__.get("serial_number_at_connect")
+    if dev.sim is not None:
+        return dev.sim.reconnect(serial)
+    time.sleep(1.0)  # the board resets; searching at once may find the old USB device still
+    return _find_usb(timeout, None if serial is None else f"{serial:012X}")
+
+
+def _save_and_reconnect(dev: Device, timeout: float = 10.0) -> None:
+    """``save_configuration()`` the firmware's way: axes idle first; on 0.5.2+ the board
+    refuses while armed and reboots otherwise (main.cpp:159-184), so the connection is
+    re-made by serial number. Calibration is lost by the reboot (unless pre-calibrated)."""
+    dev.__dict__["serial_number_at_connect"] = int(dev.raw.serial_number)
+    dev.idle_all()
+    _wait_states(dev, (0, 1), AXIS_STATE_IDLE, what="going IDLE before saving")
+    reboots = _has_system_error(dev)
+    try:
+        ok = dev.raw.save_configuration()
+    except Exception as exc:  # noqa: BLE001 - the board resets before it answers
+        if not reboots:
+            raise
+        lost = exc
+    else:
+        lost = None
+        if ok is False:
+            raise ExperimentError("save_configuration refused: a motor is armed (set both axes IDLE first)")
+    if reboots:
+        try:
+            dev.rebind(_reconnect(dev, timeout))
+        except Exception as exc:
+            raise ExperimentError(f"the ODrive rebooted after save_configuration ({lost!r}) and did not "
+                                  f"come back within {timeout:g} s: {exc}") from exc
+        dev.axes = dev.axes.zeroed((0.0, 0.0))  # the counts restarted: the old zero is void
+
+
+def clear_errors(odrv) -> None:
+    """Clear all error flags the firmware's way (after inspecting them): ``odrv.clear_errors()``
+    on 0.5.2+ (main.cpp:236-249; it also re-arms an enabled brake resistor),
+    ``axis.clear_errors()`` on 0.5.1 (fw-v0.5.1 axis.hpp:108-116)."""
+    dev = as_device(odrv)
+    if _has_system_error(dev):
+        dev.raw.clear_errors()
+    else:
+        for a in (0, 1):
+            dev.axis(a).clear_errors()
+
+
 def apply_configuration(dev: Device, config: OdriveConfig | None = None, save: bool = True) -> dict:
-    """Apply Listing 7.1's configuration to both axes, check it reads back, and save it.
+    """Apply Listing 7.1's configuration to both axes, check it reads back, enable the brake
+    resistor, and save it.
+
+    The thesis's board has a 2.05 ohm brake resistor; firmware 0.5.2+ leaves it disabled by
+    default (odrive_main.h:82) and then trips ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT as soon as
+    a braking motor feeds back more than 10 mA (odrive_main.h:111, low_level.cpp:374-376).
+    The resistor is armed only at boot or by ``clear_errors`` (low_level.cpp:181-183,
+    main.cpp:246-248): with ``save`` the reboot arms it, without, ``clear_errors`` does.
+    On 0.5.2+ saving reboots the board: the device is reconnected by serial number
+    (``dev`` is rebound in place) and must be calibrated again.
 
     Returns the values written, per axis.
     """
@@ -288,52 +484,167 @@ def apply_configuration(dev: Device, config: OdriveConfig | None = None, save: b
         for a in (0, 1):
             values = {"current_lim": cfg.current_lim, "vel_limit": cfg.vel_limit,
                       "pole_pairs": cfg.pole_pairs, "torque_constant": cfg.torque_constant,
-                      "motor_type": cfg.motor_type}
-            if PROPERTY_PATHS[dev.firmware]["cpr"] is not None:
-                values["cpr"] = cfg.cpr
+                      "motor_type": cfg.motor_type, "cpr": cfg.cpr}
             for key, value in values.items():
                 dev.set(a, key, value)
                 back = dev.get(a, key)
                 if not math.isclose(float(back), float(value), rel_tol=1e-6, abs_tol=1e-9):
                     raise ExperimentError(f"axis{a}.{key}: wrote {value}, device reports {back}")
             written[f"axis{a}"] = values
-        if dev.firmware == "0.5":
-            dev.raw.config.brake_resistance = cfg.brake_resistance
-            written["brake_resistance"] = cfg.brake_resistance
+        dev.raw.config.brake_resistance = cfg.brake_resistance
+        written["brake_resistance"] = cfg.brake_resistance
+        if _has_system_error(dev):
+            dev.raw.config.enable_brake_resistor = True
+            written["enable_brake_resistor"] = True
         if save:
-            dev.raw.save_configuration()
+            _save_and_reconnect(dev)
+            for a in (0, 1):
+                for key, value in written[f"axis{a}"].items():
+                    back = dev.get(a, key)
+                    if not math.isclose(float(back), float(value), rel_tol=1e-6, abs_tol=1e-9):
+                        raise ExperimentError(f"axis{a}.{key}: saved {value}, the rebooted device reports {back}")
+        elif _has_system_error(dev):
+            clear_errors(dev)   # arms the brake resistor
     return written
 
 
-def calibrate(dev: Device, timeout: float = 60.0, poll: float = 0.1) -> None:
-    """Run the full calibration sequence on both axes and wait for it (Listing 7.2).
+def calibrate(dev: Device, timeout: float = 60.0, poll: float = 0.1, zero: bool = True) -> None:
+    """Calibrate both axes (Listing 7.2), one after the other, then zero the joint angles.
 
-    Raises ExperimentError naming the axis and its error flags when calibration fails.
+    The encoder offset calibration turns the rotor about +-0.73 turn (16 pi electrical rad
+    over 11 pole pairs, encoder.hpp:22; +-87 deg of joint on the 1:3 belt) at
+    ``calibration_current``; the leg must be free to swing that far. The axes go one at a
+    time: the idle link is carried along through the stop between the links, whereas two
+    simultaneous locks can squeeze the links against their stop (each rotor jumps to its
+    nearest electrical alignment, up to 1/22 turn, 5.5 deg of joint) and the two scans then
+    fight. A motor with ``motor.config.pre_calibrated`` skips its motor calibration; the
+    encoders (incremental, no index) always need the offset calibration after a boot
+    (encoder.cpp:19-30,130-138).
+
+    With ``zero`` the joint angles are defined at the rest pose from ``pos_estimate``: read
+    before the calibration (the leg resting on its stop, as :func:`zero_joints` does) and
+    carried through the calibration's re-referencing of the counts (encoder.cpp:344 shifts
+    them by whole turns, found from the positions before and after). A leg that calibration
+    left at rest within the friction dead band (about 1 deg here) would give a zero that far
+    off; the pose before calibration is the one the leg settled into undisturbed. When the
+    leg does not come back to within 0.05 turn of that pose, it is zeroed where it rests
+    after calibration instead (with a warning).
+
+    Raises ExperimentError naming the axis and its error flags when calibration fails, and
+    when an axis does not finish within ``timeout`` s (device and wall clock).
     """
     dev = as_device(dev)
+    if isinstance(timeout, bool) or not (isinstance(timeout, (int, float)) and math.isfinite(timeout) and timeout > 0):
+        raise ValueError(f"timeout must be a positive number of seconds, got {timeout!r}")
+    before = _rest_positions(dev) if zero else None
     with safe(dev):
         for a in (0, 1):
-            dev.set(a, "requested_state", AXIS_STATE_FULL_CALIBRATION_SEQUENCE)
-        start = dev.time()
-        while True:
-            dev.sleep(poll)
-            states = [int(dev.get(a, "current_state")) for a in (0, 1)]
-            if all(s == AXIS_STATE_IDLE for s in states):
-                break
-            if dev.time() - start > timeout:
-                raise ExperimentError(f"calibration did not finish within {timeout} s (states {states})")
+            if int(dev.get(a, "error")):
+                raise ExperimentError(f"axis{a} has an error before calibration: {_error_text(dev, a)}; "
+                                      f"inspect it, then call leglib.odrive_io.clear_errors(odrv)")
         for a in (0, 1):
-            err = int(dev.get(a, "error"))
-            if err:
-                raise ExperimentError(f"axis{a} calibration failed: axis.error = 0x{err:x} "
-                                      f"(check cpr and pole_pairs against the hardware)")
+            request = (AXIS_STATE_ENCODER_OFFSET_CALIBRATION if bool(dev.get(a, "is_calibrated"))
+                       else AXIS_STATE_FULL_CALIBRATION_SEQUENCE)
+            dev.set(a, "requested_state", request)
+            deadline = _Deadline(dev, timeout, f"calibration of axis{a}")
+            while True:
+                dev.sleep(poll)
+                if int(dev.get(a, "requested_state")) == AXIS_STATE_UNDEFINED \
+                        and int(dev.get(a, "current_state")) == AXIS_STATE_IDLE:
+                    break
+                deadline.check(f" (state {int(dev.get(a, 'current_state'))})")
+            if int(dev.get(a, "error")) or not bool(dev.get(a, "is_ready")):
+                raise ExperimentError(f"axis{a} calibration failed: {_error_text(dev, a)} "
+                                      f"(check cpr and pole_pairs against the hardware, and that the "
+                                      f"leg can swing freely)")
+    if zero:
+        after = _rest_positions(dev)
+        shift = np.round(after - before)   # whole turns: the counts' re-reference
+        if np.all(np.abs(after - before - shift) < 0.05):
+            dev.axes = dev.axes.zeroed(before + shift)
+        else:
+            warnings.warn(f"the leg did not come back to its rest pose after calibration (moved "
+                          f"{np.round(after - before - shift, 3)} turn): zeroed where it rests now",
+                          stacklevel=2)
+            dev.axes = dev.axes.zeroed(after)
+
+
+def _rest_positions(dev: Device, settle: float = 1.0, max_speed: float = 0.01) -> np.ndarray:
+    """Motor positions [turn] (joint 0's motor, joint 1's motor) of the leg at rest: both
+    axes IDLE, ``settle`` s, then the mean of a few ``pos_estimate`` readings; refused while
+    a motor still turns faster than ``max_speed`` turn/s."""
+    with safe(dev):
+        _wait_states(dev, (0, 1), AXIS_STATE_IDLE, what="going IDLE before zeroing")
+        dev.sleep(settle)
+        a1, a2 = dev.axes.axis_of_joint
+
+        def mean_pos(n=8):
+            return np.mean([(float(dev.get(a1, "pos_estimate")), float(dev.get(a2, "pos_estimate")))
+                            for _ in range(n)], axis=0)
+        t0, p0 = dev.time(), mean_pos()
+        dev.sleep(0.25)
+        p1 = mean_pos()
+        speed = np.abs(p1 - p0) / max(dev.time() - t0, 1e-9)
+        for a, v in zip((a1, a2), speed):
+            if v > max_speed:
+                raise ExperimentError(f"axis{a} still turns at {v:.3f} turn/s: the leg is not at rest; "
+                                      f"zeroing needs it resting on its stop")
+    return p1
+
+
+def zero_joints(odrv, settle: float = 1.0, max_speed: float = 0.01) -> tuple[float, float]:
+    """Define the joint angles: with both axes IDLE and the leg resting on its stop (the
+    rest pose, q = leg.q0, thesis 5.3), read ``pos_estimate`` of both motors and take it as
+    the rest pose (Listing 7.4 zeroes its angles at the start in the same way).
+
+    Waits ``settle`` s first; refuses when a motor still turns faster than ``max_speed``
+    turn/s. Returns the motor positions [turn] (joint 0's motor, joint 1's motor). The
+    leg rests anywhere within its friction dead band (about 1 deg of joint here): that is
+    the accuracy of the zero.
+    """
+    dev = as_device(odrv)
+    turns = _rest_positions(dev, settle, max_speed)
+    dev.axes = dev.axes.zeroed(turns)
+    return float(turns[0]), float(turns[1])
+
+
+def apply_gains(odrv, gains, save: bool = True, timeout: float = 10.0):
+    """Write (pos_gain, vel_gain, vel_integrator_gain) to both axes and read them back; with
+    ``save`` store them on the ODrive so they survive a power cycle (axes IDLE,
+    ``save_configuration``, the reboot and the reconnection by serial number handled).
+
+    Returns the device (the same :class:`Device`, rebound to the new connection after a
+    reboot; on 0.5.2+ it must be calibrated again before it moves).
+    """
+    dev = as_device(odrv)
+    g = tuple(gains) if not isinstance(gains, (str, bytes)) else ()
+    if len(g) != 3:
+        raise ValueError(f"gains must be (pos_gain, vel_gain, vel_integrator_gain), got {gains!r}")
+    _check_gains(dev.config, *g)
+    keys = ("pos_gain", "vel_gain", "vel_integrator_gain")
+    with safe(dev):
+        for a in (0, 1):
+            for key, value in zip(keys, g):
+                dev.set(a, key, float(value))
+                back = float(dev.get(a, key))
+                if not math.isclose(back, float(value), rel_tol=1e-6, abs_tol=1e-12):
+                    raise ExperimentError(f"axis{a}.{key}: wrote {value}, device reports {back}")
+        if save:
+            _save_and_reconnect(dev, timeout)
+            for a in (0, 1):
+                for key, value in zip(keys, g):
+                    back = float(dev.get(a, key))
+                    if not math.isclose(back, float(value), rel_tol=1e-6, abs_tol=1e-12):
+                        raise ExperimentError(f"axis{a}.{key}: saved {value}, the rebooted device reports {back}")
+    return dev
 
 
 def _check_gains(cfg: OdriveConfig, pos_gain, vel_gain, vel_integrator_gain):
     for name, value, high in (("pos_gain", pos_gain, cfg.max_pos_gain),
                               ("vel_gain", vel_gain, cfg.max_vel_gain),
                               ("vel_integrator_gain", vel_integrator_gain, cfg.max_vel_integrator_gain)):
-        if not isinstance(value, (int, float, np.integer, np.floating)) or not math.isfinite(value):
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(value):
             raise ValueError(f"{name} must be a finite number, got {value!r}")
         if not 0.0 <= value <= high:
             raise ValueError(f"{name} = {value} is outside the allowed range [0, {high}] "
@@ -386,30 +697,47 @@ class StepResponse:
                    completed=m.stable, abort_reason=m.meta.get("abort_reason"), meta=m.meta)
 
 
-def clear_errors(odrv) -> None:
-    """Clear the error flags of both axes (after inspecting them)."""
-    dev = as_device(odrv)
-    for a in (0, 1):
-        for key in ("error", "controller_error", "motor_error"):
-            dev.set(a, key, 0)
-
-
 def _prepare_closed_loop(dev: Device, vel_limit: float, watchdog: float | None) -> None:
     """Refuse to start on a stale fault; then limits, then the watchdog (on with a timeout
-    [s], off with None); both axes."""
+    [s], off with None); both axes.
+
+    The watchdog is fed before it is enabled: its timer counts down in every state while
+    enabled and is only reloaded by a feed (axis.cpp:165-182), so enabling it unfed trips
+    AXIS_ERROR_WATCHDOG_TIMER_EXPIRED at once.
+    """
+    if not (isinstance(vel_limit, (int, float, np.integer, np.floating)) and not isinstance(vel_limit, bool)
+            and math.isfinite(vel_limit) and vel_limit > 0):
+        raise ValueError(f"vel_limit must be a positive finite number [turn/s], got {vel_limit!r}")
+    if watchdog is not None and not (math.isfinite(watchdog) and watchdog > 0):
+        raise ValueError(f"watchdog must be a positive timeout [s] or None, got {watchdog!r}")
+    if _any_error(dev):
+        raise ExperimentError(f"an earlier fault is still flagged ({errors(dev)}); inspect it, then call "
+                              f"leglib.odrive_io.clear_errors(odrv)")
     for a in (0, 1):
-        err = int(dev.get(a, "error"))
-        if err:
-            raise ExperimentError(f"axis{a} has error 0x{err:x} from an earlier fault; inspect it, then "
-                                  f"call leglib.odrive_io.clear_errors(odrv)")
+        if not (bool(dev.get(a, "is_calibrated")) and bool(dev.get(a, "is_ready"))):
+            raise ExperimentError(f"axis{a} is not calibrated (motor.is_calibrated, encoder.is_ready): "
+                                  f"run leglib.odrive_io.calibrate(odrv) first")
     for a in (0, 1):
         dev.set(a, "current_lim", dev.config.current_lim)
         dev.set(a, "vel_limit", vel_limit)
         if watchdog:
             dev.set(a, "watchdog_timeout", watchdog)
+            dev.axis(a).watchdog_feed()
             dev.set(a, "enable_watchdog", True)
         else:
             dev.set(a, "enable_watchdog", False)
+
+
+def _enter_closed_loop(dev: Device, feed: bool = True) -> None:
+    """Request closed loop on both axes and wait until both are in it: the request is taken
+    up by the axis thread about 1 ms later, and entering sets ``input_pos := pos_estimate``
+    (axis.cpp:290-291, 455-488), so targets are written only after this returns."""
+    for a in (0, 1):
+        dev.set(a, "requested_state", AXIS_STATE_CLOSED_LOOP_CONTROL)
+    _wait_states(dev, (0, 1), AXIS_STATE_CLOSED_LOOP_CONTROL, what="entering closed loop")
+    if feed:
+        for a in (0, 1):
+            dev.axis(a).watchdog_feed()
 
 
 def _abort_reason_of(code: int) -> str | None:
@@ -430,7 +758,7 @@ def _responses_from_batch(dev: Device, gains, out: dict, step: float) -> list[St
         reason = _abort_reason_of(out["abort_reason"][i])
         if reason is None and not completed:
             reason = f"axis error 0x{int(out['axis_error'][i].max()):x} (firmware fault)"
-        n = len(out["t"]) if completed else max(2, int(out["abort_tick"][i] * dev.raw.twin.dt /
+        n = len(out["t"]) if completed else max(2, int(out["abort_tick"][i] * dev.sim.twin.dt /
                                                      max(out["t"][1] - out["t"][0], 1e-12)) + 1)
         n = min(n, len(out["t"]))
         _, y = foot_position(dev.leg, q1[:n], q2[:n])
@@ -441,30 +769,37 @@ def _responses_from_batch(dev: Device, gains, out: dict, step: float) -> list[St
     return res
 
 
-def _step_usb(dev: Device, gains, step, duration, sample_period, vel_limit, abort_error) -> StepResponse:
-    """Listing 7.4 on a real device: a paced polling loop with safety checks."""
+def _step_usb(dev: Device, gains, step, duration, sample_period, vel_limit, abort_error,
+              on_sample=None) -> StepResponse:
+    """Listing 7.4 on a real device (and on a real-time twin): a paced polling loop with
+    safety checks. Completed only when no abort and no firmware error happened."""
     from . import twin as T
     ax = dev.axes
     a_q1, a_q2 = ax.axis_of_joint
+    ts, c1, c2 = [], [], []
+    reason = None
     with safe(dev):
-        _prepare_closed_loop(dev, vel_limit, watchdog=0.5)
+        _prepare_closed_loop(dev, vel_limit, watchdog=max(0.5, 5 * sample_period))
         for a in (0, 1):
             dev.set(a, "pos_gain", gains[0])
             dev.set(a, "vel_gain", gains[1])
             dev.set(a, "vel_integrator_gain", gains[2])
             dev.set(a, "control_mode", CONTROL_MODE_POSITION)
             dev.set(a, "input_mode", INPUT_MODE_PASSTHROUGH)
+        _enter_closed_loop(dev)
         start_pos = {a: float(dev.get(a, "pos_estimate")) for a in (0, 1)}
         target = {a_q1: start_pos[a_q1] + step, a_q2: start_pos[a_q2] - step}
         for a in (0, 1):
-            dev.set(a, "requested_state", AXIS_STATE_CLOSED_LOOP_CONTROL)
-        for a in (0, 1):
             dev.set(a, "input_pos", target[a])
+        setpoint = (float(ax.joint_angle(target[a_q1], 0)), float(ax.joint_angle(target[a_q2], 1)))
         t0 = dev.time()
-        ts, c1, c2 = [], [], []
-        reason = None
         monitors = {a: np.zeros(T.N_OSC) for a in (0, 1)}
         next_sample = 0.0
+        # each property is one USB transaction (about 0.4 ms): read the counts every sample
+        # and do one housekeeping transaction per sample, in turn: feed axis 0, feed axis 1,
+        # check the state of axis 0, of axis 1
+        k = 0
+        dropped = None
         while True:
             now = dev.time() - t0
             if now > duration:
@@ -472,13 +807,20 @@ def _step_usb(dev: Device, gains, step, duration, sample_period, vel_limit, abor
             if now < next_sample:
                 dev.sleep(min(next_sample - now, sample_period))
                 continue
-            next_sample += sample_period
+            # the next slot on the grid; slots already missed are skipped, not caught up in a burst
+            next_sample += sample_period * max(1, math.ceil((now - next_sample) / sample_period + 1e-9))
             n1, n2 = dev.counts(a_q1), dev.counts(a_q2)
             ts.append(dev.time() - t0)
             c1.append(n1)
             c2.append(n2)
-            for a in (0, 1):
-                dev.axis(a).watchdog_feed()
+            task, k = k % 4, k + 1
+            if task < 2:
+                dev.axis(task).watchdog_feed()
+            elif int(dev.get(task - 2, "current_state")) != AXIS_STATE_CLOSED_LOOP_CONTROL:
+                dropped = task - 2
+            if on_sample is not None:
+                on_sample({"t": ts[-1], "q1": float(ax.counts_to_joint(n1, 0)),
+                           "q2": float(ax.counts_to_joint(n2, 1)), "iq": None, "setpoint": setpoint})
             # safety, as the twin's kernel: position error bound and non-decaying oscillation
             errs = {a_q1: target[a_q1] - n1 / ax.cpr, a_q2: target[a_q2] - n2 / ax.cpr}
             if max(abs(e) for e in errs.values()) > abort_error:
@@ -487,10 +829,13 @@ def _step_usb(dev: Device, gains, step, duration, sample_period, vel_limit, abor
             if any(T.oscillation_update(monitors[a], errs[a], 0.025 * abort_error) for a in (0, 1)):
                 reason = "oscillation not decaying (growing or sustained)"
                 break
-            if any(int(dev.get(a, "current_state")) != AXIS_STATE_CLOSED_LOOP_CONTROL for a in (0, 1)):
-                errs = [int(dev.get(a, "error")) for a in (0, 1)]
-                reason = f"axis dropped out of closed loop (errors 0x{errs[0]:x}, 0x{errs[1]:x})"
+            if dropped is not None:
+                reason = f"axis{dropped} dropped out of closed loop ({errors(dev)})"
                 break
+        if reason is None and _any_error(dev):
+            reason = f"firmware error during the step ({errors(dev)})"
+        if reason is None and len(ts) < 2:
+            reason = "fewer than two samples were taken"
     t = np.asarray(ts)
     q1 = ax.counts_to_joint(np.asarray(c1), 0)
     q2 = ax.counts_to_joint(np.asarray(c2), 1)
@@ -501,35 +846,67 @@ def _step_usb(dev: Device, gains, step, duration, sample_period, vel_limit, abor
                         meta={**dev.describe(), "sample_rate_hz": rate})
 
 
+def _check_step(dev: Device, step, duration, sample_period, vel_limit) -> None:
+    def number(name, value):
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(value):
+            raise ValueError(f"{name} must be a finite number, got {value!r}")
+    number("duration", duration)
+    number("sample_period", sample_period)
+    number("step", step)
+    if not (0 < duration <= 30):
+        raise ValueError(f"duration must be in (0, 30] s, got {duration}")
+    if not (0 < sample_period < duration):
+        raise ValueError(f"sample_period must be positive and shorter than duration ({duration} s), "
+                         f"got {sample_period}")
+    if not (0 < abs(step) <= 1.0):
+        raise ValueError(f"step must be a non-zero motor step of at most 1 turn, got {step}")
+    if abs(step) * dev.axes.cpr < 2:
+        raise ValueError(f"step = {step} turn is below the encoder's resolution (1/{dev.axes.cpr} turn): "
+                         f"at least 2 counts are needed")
+    if vel_limit is not None:
+        number("vel_limit", vel_limit)
+        if vel_limit <= 0:
+            raise ValueError(f"vel_limit must be positive [turn/s], got {vel_limit}")
+
+
 def step_response(odrv, pos_gain: float, vel_gain: float, vel_integrator_gain: float,
                   step: float = 0.4, duration: float = 1.5, sample_period: float = 0.002,
-                  vel_limit: float | None = None, settle: float = 2.0) -> StepResponse:
+                  vel_limit: float | None = None, settle: float = 2.0, on_sample=None) -> StepResponse:
     """Listing 7.4's position step with the given gains, from the leg at rest.
 
     The axis driving q1 moves by +``step`` motor turns, the other by -``step``. Gains are
     refused outside the configured bounds. The experiment aborts, sets IDLE and marks the
-    response not completed when the position error passes 2*|step| or the oscillation
-    stops decaying (three half-cycles in a row no smaller than the one before). Afterwards the axes are IDLE and the leg is left ``settle`` s to
-    come to rest.
+    response not completed when the position error passes 2*|step|, the oscillation stops
+    decaying (three half-cycles in a row no smaller than the one before), or any firmware
+    error is raised during it. Afterwards the axes are IDLE and the leg is left ``settle``
+    s to come to rest.
 
     On the twin the step runs whole in the compiled kernel (a batch of one, the same path
-    :func:`sweep` uses for many); on USB it is a paced polling loop.
+    :func:`sweep` uses for many); on USB, and on a twin running in real time
+    (``realtime=True``), it is a paced polling loop.
+
+    ``on_sample``, when given, is called from the polling loop as ``on_sample(sample)`` with
+    ``{"t": s, "q1": rad, "q2": rad, "iq": None, "setpoint": (q1, q2) rad}`` (a live view).
+    It runs between samples and must be cheap (well under ``sample_period``): a slow
+    callback delays the next sample. On the compiled (non-real-time) path it is not called.
     """
     dev = as_device(odrv)
     _check_gains(dev.config, pos_gain, vel_gain, vel_integrator_gain)
-    if not (0 < duration <= 30):
-        raise ValueError(f"duration must be in (0, 30] s, got {duration}")
-    if not (0 < abs(step) <= 1.0):
-        raise ValueError(f"step must be a non-zero motor step of at most 1 turn, got {step}")
+    _check_step(dev, step, duration, sample_period, vel_limit)
+    if on_sample is not None and not callable(on_sample):
+        raise TypeError(f"on_sample must be callable, got {on_sample!r}")
     gains = (float(pos_gain), float(vel_gain), float(vel_integrator_gain))
     vl = dev.config.step_vel_limit if vel_limit is None else vel_limit
-    if dev.backend == "virtual":
+    sim = dev.sim
+    if sim is not None and not sim.realtime:
         with safe(dev):
-            out = dev.raw.step_batch(np.array([gains]), step_turns=step, duration=duration,
-                                     sample_period=sample_period, vel_limit=vl,
-                                     abort_error_turns=2 * abs(step))
+            _prepare_closed_loop(dev, vl, watchdog=None)
+            out = sim.step_batch(np.array([gains]), step_turns=step, duration=duration,
+                                 sample_period=sample_period, vel_limit=vl,
+                                 abort_error_turns=2 * abs(step))
         return _responses_from_batch(dev, [gains], out, step)[0]
-    resp = _step_usb(dev, gains, step, duration, sample_period, vl, 2 * abs(step))
+    resp = _step_usb(dev, gains, step, duration, sample_period, vl, 2 * abs(step), on_sample=on_sample)
     dev.sleep(settle)
     return resp
 
@@ -646,6 +1023,11 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
     claims: list = []
     try:
         with safe(dev):
+            batched = dev.sim is not None and not dev.sim.realtime
+            if batched:
+                _prepare_closed_loop(dev, vl, watchdog=None)
+            else:
+                size = 1
             while queue:
                 block, waiting = [], []
                 for g in queue:
@@ -670,9 +1052,9 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
                     queue = waiting
                     continue
                 if block:
-                    if dev.backend == "virtual":
+                    if batched:
                         arr = np.array(block)
-                        out = dev.raw.step_batch(arr, step_turns=step, duration=duration,
+                        out = dev.sim.step_batch(arr, step_turns=step, duration=duration,
                                                  sample_period=sample_period, vel_limit=vl,
                                                  abort_error_turns=2 * abs(step))
                         responses = _responses_from_batch(dev, arr, out, step)
@@ -683,6 +1065,8 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
                         written.append(resp.write(out_dir))
                         unstable += not resp.completed
                         bar.update(1)
+                    if _any_error(dev):   # recorded with the failed point; the sweep goes on
+                        clear_errors(dev)
                 for c in claims:
                     c.release()
                 claims = []
@@ -775,7 +1159,7 @@ class TorqueRun:
 
 def torque_loop(odrv, policy, duration: float, period: float | None = None,
                 max_joint_speed: float = 20.0, meta: dict | None = None,
-                record_current: bool = True, check_every: int = 1) -> TorqueRun:
+                record_current: bool = True, check_every: int = 1, on_sample=None) -> TorqueRun:
     """Both joints in torque control; each cycle reads the joint angles, asks
     ``policy(t, q1, q2) -> (tau1, tau2)`` [N*m at the joints] and writes the torques.
 
@@ -783,9 +1167,22 @@ def torque_loop(odrv, policy, duration: float, period: float | None = None,
     without, the loop runs as fast as the link allows (the thesis's playback). Records the
     actual read and write time of every value. Aborts to IDLE when a joint moves faster
     than ``max_joint_speed`` rad/s or an axis drops out of closed loop (checked every
-    ``check_every`` cycles; each check and each Iq read costs a USB transaction).
+    ``check_every`` cycles; each check and each Iq read costs a USB transaction), and when
+    the firmware flags an error during the run.
+
+    ``on_sample``, when given, is called every cycle as ``on_sample(sample)`` with
+    ``{"t": s, "q1": rad, "q2": rad, "iq": (A, A) or None, "setpoint": None}`` (a live
+    view). It runs inside the loop and must be cheap: a slow callback lowers the loop rate.
     """
     dev = as_device(odrv)
+    for name, value in (("duration", duration), ("max_joint_speed", max_joint_speed)):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(value) or value <= 0:
+            raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+    if period is not None and (isinstance(period, bool) or not math.isfinite(period) or not 0 < period < duration):
+        raise ValueError(f"period must be positive and shorter than duration ({duration} s), got {period!r}")
+    if on_sample is not None and not callable(on_sample):
+        raise TypeError(f"on_sample must be callable, got {on_sample!r}")
     ax = dev.axes
     a_q1, a_q2 = ax.axis_of_joint
     limit = dev.config.current_lim * dev.config.torque_constant
@@ -795,7 +1192,8 @@ def torque_loop(odrv, policy, duration: float, period: float | None = None,
         for a in (0, 1):
             dev.set(a, "input_torque", 0.0)
             dev.set(a, "control_mode", CONTROL_MODE_TORQUE)
-            dev.set(a, "requested_state", AXIS_STATE_CLOSED_LOOP_CONTROL)
+            dev.set(a, "input_mode", INPUT_MODE_PASSTHROUGH)
+        _enter_closed_loop(dev)
         t0 = dev.time()
         k = 0
         prev = None
@@ -806,6 +1204,8 @@ def torque_loop(odrv, policy, duration: float, period: float | None = None,
                 now = dev.time() - t0
             if now > duration:
                 break
+            if period is not None:   # slots already missed are skipped, not caught up in a burst
+                k = max(k, math.floor(now / period + 1e-9))
             k += 1
             n1 = dev.counts(a_q1)
             r1 = dev.time() - t0
@@ -830,19 +1230,27 @@ def torque_loop(odrv, policy, duration: float, period: float | None = None,
                 iq.append((float(dev.get(a_q1, "Iq_measured")), float(dev.get(a_q2, "Iq_measured"))))
             else:
                 iq.append((math.nan, math.nan))
-            for a in (0, 1):
-                dev.axis(a).watchdog_feed()
+            # one USB transaction each: feed the watchdog (0.2 s) every 10th cycle, axes in turn
+            if k % 10 in (0, 5):
+                dev.axis(0 if k % 10 == 0 else 1).watchdog_feed()
+            if on_sample is not None:
+                on_sample({"t": r2, "q1": q1, "q2": q2,
+                           "iq": None if not record_current else tuple(iq[-1]), "setpoint": None})
             if prev is not None and ts[-1] > prev[0]:
                 speed = max(abs(n1 - prev[1]), abs(n2 - prev[2])) / ax.cpr * 2 * math.pi / ax.gear_ratio / (ts[-1] - prev[0])
                 if speed > max_joint_speed:
                     raise ExperimentError(f"joint speed {speed:.1f} rad/s exceeds {max_joint_speed} rad/s "
                                           f"at t = {ts[-1]:.3f} s: aborted, axes IDLE")
             prev = (ts[-1], n1, n2)
-            if k % check_every == 0 and int(dev.get(a_q1, "current_state")) != AXIS_STATE_CLOSED_LOOP_CONTROL:
-                raise ExperimentError(f"axis{a_q1} dropped out of closed loop at t = {ts[-1]:.3f} s "
-                                      f"(error 0x{int(dev.get(a_q1, 'error')):x})")
+            if k % check_every == 0:
+                for a in (a_q1, a_q2) if check_every == 1 else (a_q1,):
+                    if int(dev.get(a, "current_state")) != AXIS_STATE_CLOSED_LOOP_CONTROL:
+                        raise ExperimentError(f"axis{a} dropped out of closed loop at t = {ts[-1]:.3f} s: "
+                                              f"{_error_text(dev, a)}")
         for a in (0, 1):
             dev.set(a, "input_torque", 0.0)
+        if _any_error(dev):
+            raise ExperimentError(f"a firmware error was raised during the run: {errors(dev)}")
     t = np.asarray(ts)
     rate = (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 else float("nan")
     return TorqueRun(t=t, q1=ax.counts_to_joint(np.asarray(c1), 0), q2=ax.counts_to_joint(np.asarray(c2), 1),
@@ -882,9 +1290,10 @@ def play_torque_table(odrv, tau, period: float = 0.002, duration: float | None =
 
 def return_to_rest(odrv, pos_gain: float = 20.0, vel_gain: float = 0.05, vel_integrator_gain: float = 0.3,
                    move_time: float = 2.0, settle: float = 0.5) -> tuple[float, float]:
-    """Bring the leg back to its rest pose (motor position zero, where it was powered up)
-    with soft position control, then IDLE and let it settle. Returns the joint angles [rad]
-    it ends at. Experiments that start "from rest" call it between runs on a real bench."""
+    """Bring the leg back to its rest pose (the zeroed motor positions, see
+    :func:`zero_joints`) with soft position control, then IDLE and let it settle. Returns
+    the joint angles [rad] it ends at. Experiments that start "from rest" call it between
+    runs on a real bench."""
     dev = as_device(odrv)
     _check_gains(dev.config, pos_gain, vel_gain, vel_integrator_gain)
     with safe(dev):
@@ -895,8 +1304,9 @@ def return_to_rest(odrv, pos_gain: float = 20.0, vel_gain: float = 0.05, vel_int
             dev.set(a, "vel_integrator_gain", vel_integrator_gain)
             dev.set(a, "control_mode", CONTROL_MODE_POSITION)
             dev.set(a, "input_mode", INPUT_MODE_PASSTHROUGH)
-            dev.set(a, "requested_state", AXIS_STATE_CLOSED_LOOP_CONTROL)
-            dev.set(a, "input_pos", 0.0)
+        _enter_closed_loop(dev, feed=False)
+        for j, a in enumerate(dev.axes.axis_of_joint):
+            dev.set(a, "input_pos", dev.axes.zero[j])
         dev.sleep(move_time)
     dev.sleep(settle)
     a1, a2 = dev.axes.axis_of_joint

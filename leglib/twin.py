@@ -30,29 +30,45 @@ from .params import (LegParams, MotorParams, OdriveConfig, PlantParams, load_mot
 
 TICK_HZ_DEFAULT = 8000.0
 
-# axis modes inside the kernel (control_mode values of the firmware; 0 = not in closed loop)
-MODE_IDLE, MODE_TORQUE, MODE_VELOCITY, MODE_POSITION = 0, 1, 2, 3
+# axis modes inside the kernel (control_mode values of the firmware; 0 = not in closed loop;
+# MODE_CALIB: armed by a calibration, the rotor locked to an electrical angle that the axis
+# state machine of leglib.virtual_odrive moves)
+MODE_IDLE, MODE_TORQUE, MODE_VELOCITY, MODE_POSITION, MODE_CALIB = 0, 1, 2, 3, 4
+# controller.config.input_mode values (firmware enums)
+INPUT_MODE_INACTIVE, INPUT_MODE_PASSTHROUGH, INPUT_MODE_POS_FILTER, INPUT_MODE_TRAP_TRAJ = 0, 1, 3, 5
 
 # float config per axis: C[b, axis, k]
 (C_POS_GAIN, C_VEL_GAIN, C_VEL_INT_GAIN, C_VEL_LIMIT, C_VEL_TOL, C_CURRENT_LIM, C_KT,
  C_INPUT_POS, C_INPUT_VEL, C_INPUT_TORQUE, C_WD_TIMEOUT, C_CURRENT_BW, C_ENCODER_BW,
- C_ABORT_ERROR) = range(14)
-N_CFG = 14
+ C_ABORT_ERROR, C_WD_ENABLE, C_COUNT_OFFSET, C_VEL_INT_LIMIT, C_INPUT_MODE, C_FILTER_BW,
+ C_TT_XI, C_TT_XF, C_TT_VI, C_TT_AR, C_TT_VR, C_TT_DR, C_TT_TA, C_TT_TV, C_TT_TD, C_TT_YACC,
+ C_CAL_VEL, C_CAL_CURRENT, C_INT_RESET_TORQUE, C_CAL_RAMP) = range(33)
+# system (board) configuration, kept in the slots of axis 0: C[b, 0, k]
+(C_BRAKE_ON, C_BRAKE_R, C_MAX_REGEN, C_DC_MAX_POS, C_DC_MAX_NEG, C_VBUS, C_REGEN_ERR_STYLE) = range(33, 40)
+N_CFG = 40
 # float state per axis: AS[b, axis, k]
 S_POS_EST, S_VEL_EST, S_INTEGRATOR, S_IQ, S_WD_TIMER, S_IQ_MEAS = range(6)
 S_OSC = 6           # N_OSC slots of the oscillation monitor (see oscillation_update)
 N_OSC = 6
 S_COUNT_F = S_OSC + N_OSC  # the encoder reading as a float (equal to the counts when quantized)
-N_AXSTATE = S_COUNT_F + 1
-# int state per axis: AI[b, axis, k]
-I_MODE, I_AXIS_ERR, I_CTRL_ERR, I_MOTOR_ERR, I_COUNTS = range(5)
-N_AXINT = 5
+(S_POS_SP, S_VEL_SP, S_TQ_SP, S_TT_T, S_CAL_POS, S_IBUS_MOTOR, S_CAL_I) = range(S_COUNT_F + 1, S_COUNT_F + 8)
+# system state in the slots of axis 0: the reported bus current and the brake current [A]
+S_IBUS, S_BRAKE_I = S_COUNT_F + 8, S_COUNT_F + 9
+N_AXSTATE = S_COUNT_F + 10
+# int state per axis: AI[b, axis, k]; I_SYS_ERR is the board's error (odrv.error), on axis 0
+I_MODE, I_AXIS_ERR, I_CTRL_ERR, I_MOTOR_ERR, I_COUNTS, I_TRAJ_DONE, I_SYS_ERR = range(7)
+N_AXINT = 7
 # firmware error codes (odrive.enums values)
 AXIS_ERROR_MOTOR_FAILED = 0x40
 AXIS_ERROR_CONTROLLER_FAILED = 0x200
 AXIS_ERROR_WATCHDOG_TIMER_EXPIRED = 0x800
 CONTROLLER_ERROR_OVERSPEED = 0x1
 MOTOR_ERROR_CURRENT_LIMIT_VIOLATION = 0x1000
+MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT = 0x4000      # 0.5.1: the bus faults land on the motors
+MOTOR_ERROR_DC_BUS_OVER_CURRENT = 0x8000
+MOTOR_ERROR_SYSTEM_LEVEL = 0x1000000                # 0.5.2+: motors disarmed by a board fault
+ODRIVE_ERROR_DC_BUS_OVER_CURRENT = 0x4              # 0.5.2+: odrv.error
+ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT = 0x8
 CURRENT_LIM_MARGIN = 8.0  # A, firmware default motor.config.current_lim_margin
 # leglib's own abort codes (ABORT[b, 1])
 ABORT_NONE, ABORT_POSITION_ERROR, ABORT_NONFINITE, ABORT_OSCILLATION = 0, 1, 2, 3
@@ -138,12 +154,32 @@ def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
     P[b] the true leg's parameter vector; FR[b] = (visc1, visc2, coul1, coul2, strib1,
     strib2, v_stribeck, v_smooth, gap_min, k_stop, c_stop, J1, J2, gap_max); MECH[b] 0 five-bar,
     1 independent inertias; DRV = (gear_ratio, cpr, direction, q_rest1, q_rest2,
-    joint_of_axis0, encoder_noise, current_noise, true torque constant, quantize); TT[b, i, axis] a torque table applied
+    joint_of_axis0, encoder_noise, current_noise, true torque constant, quantize, true pole
+    pairs, phase resistance [ohm]); TT[b, i, axis] a torque table applied
     to axes in torque mode, row i = tick // tt_period (ignored when it has no rows);
     REC[b, k] = (t, counts0, counts1, Iq0, Iq1) every ``rec_every`` ticks from row
     ``rec_offset``. Returns nothing; everything is updated in place.
     """
     B = X.shape[0]
+    for b in prange(B):
+        _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC,
+                 rec_every, rec_offset)
+
+
+@njit(cache=True)
+def _run_serial(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC, rec_every,
+                rec_offset):
+    """:func:`_run` without the thread pool: cheaper per call for a batch of one (a host loop
+    advancing the virtual device a few ticks per USB transaction). Same numbers."""
+    for b in range(X.shape[0]):
+        _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC,
+                 rec_every, rec_offset)
+
+
+@njit(cache=True)
+def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC, rec_every,
+             rec_offset):
+    """Leg ``b`` of :func:`_run`."""
     N = DRV[0]
     cpr = DRV[1]
     dirn = DRV[2]
@@ -153,164 +189,281 @@ def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
     n_tab = TT.shape[1]
     n_rec = REC.shape[1]
     two_pi = 2.0 * math.pi
-    for b in prange(B):
-        tau = np.zeros(2)
-        for k in range(n_ticks):
-            if ABORT[b, 1] == ABORT_NONFINITE:
-                break
-            # ---- record (before the tick, so row 0 is the initial state)
-            if rec_every > 0 and k % rec_every == 0:
-                r = rec_offset + k // rec_every
-                if r < n_rec:
-                    REC[b, r, 0] = X[b, 4]
-                    REC[b, r, 1] = AS[b, 0, S_COUNT_F]
-                    REC[b, r, 2] = AS[b, 1, S_COUNT_F]
-                    REC[b, r, 3] = AS[b, 0, S_IQ_MEAS]
-                    REC[b, r, 4] = AS[b, 1, S_IQ_MEAS]
-            abort_now = False
-            abort_code = ABORT_NONE
-            for a in range(2):
-                j = j_of_a0 if a == 0 else 1 - j_of_a0
-                q = X[b, 2 * j]
-                turns = dirn * (q - DRV[3 + j]) * N / two_pi
-                raw = turns * cpr + enc_noise * _normal(RNG, b)
-                counts = math.floor(raw + 0.5) if DRV[9] > 0.0 else raw
-                AI[b, a, I_COUNTS] = np.int64(math.floor(raw + 0.5))
-                AS[b, a, S_COUNT_F] = counts
-                # PLL estimator (firmware: kp = 2 bw, ki = kp^2 / 4)
-                kp = 2.0 * C[b, a, C_ENCODER_BW]
-                ki = 0.25 * kp * kp
-                pe = AS[b, a, S_POS_EST] + dt * AS[b, a, S_VEL_EST]
-                delta = counts / cpr - pe
-                pe += dt * kp * delta
-                ve = AS[b, a, S_VEL_EST] + dt * ki * delta
-                if abs(ve) < 0.5 * dt * ki / cpr:
-                    ve = 0.0
-                AS[b, a, S_POS_EST] = pe
-                AS[b, a, S_VEL_EST] = ve
-                mode = AI[b, a, I_MODE]
-                if mode != MODE_IDLE and C[b, a, C_WD_TIMEOUT] > 0.0:
-                    AS[b, a, S_WD_TIMER] += dt
-                    if AS[b, a, S_WD_TIMER] > C[b, a, C_WD_TIMEOUT]:
-                        AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
-                        mode = MODE_IDLE
-                vel_limit = C[b, a, C_VEL_LIMIT]
-                if mode != MODE_IDLE and abs(ve) > vel_limit * C[b, a, C_VEL_TOL]:
-                    AI[b, a, I_CTRL_ERR] |= CONTROLLER_ERROR_OVERSPEED
-                    AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_CONTROLLER_FAILED
-                    mode = MODE_IDLE
-                if mode == MODE_POSITION and C[b, a, C_ABORT_ERROR] > 0.0:
-                    err = C[b, a, C_INPUT_POS] - pe
-                    if abs(err) > C[b, a, C_ABORT_ERROR]:
-                        abort_now = True
-                        abort_code = ABORT_POSITION_ERROR
-                    elif oscillation_update(AS[b, a, S_OSC:S_OSC + N_OSC], err, 0.025 * C[b, a, C_ABORT_ERROR]):
-                        abort_now = True
-                        abort_code = ABORT_OSCILLATION
-                if mode == MODE_IDLE:
-                    AI[b, a, I_MODE] = MODE_IDLE
-                    AS[b, a, S_IQ] = 0.0
-                    AS[b, a, S_INTEGRATOR] = 0.0
-                    AS[b, a, S_IQ_MEAS] = 0.0
-                    tau[j] = 0.0
-                    continue
-                kt = C[b, a, C_KT]
-                vel_gain = C[b, a, C_VEL_GAIN]
-                t_lim = C[b, a, C_CURRENT_LIM] * kt
-                verr = 0.0
-                if mode == MODE_TORQUE:
-                    if n_tab > 0:
-                        row = min(k // tt_period, n_tab - 1)
-                        torque = TT[b, row, a]
-                    else:
-                        torque = C[b, a, C_INPUT_TORQUE]
-                    # firmware's enable_torque_mode_vel_limit
-                    t_max = (vel_limit - ve) * vel_gain
-                    t_min = (-vel_limit - ve) * vel_gain
-                    torque = min(max(torque, t_min), t_max)
+    tau = np.zeros(2)
+    for k in range(n_ticks):
+        if ABORT[b, 1] == ABORT_NONFINITE:
+            break
+        # ---- record (before the tick, so row 0 is the initial state)
+        if rec_every > 0 and k % rec_every == 0:
+            r = rec_offset + k // rec_every
+            if r < n_rec:
+                REC[b, r, 0] = X[b, 4]
+                REC[b, r, 1] = AS[b, 0, S_COUNT_F]
+                REC[b, r, 2] = AS[b, 1, S_COUNT_F]
+                REC[b, r, 3] = AS[b, 0, S_IQ_MEAS]
+                REC[b, r, 4] = AS[b, 1, S_IQ_MEAS]
+        abort_now = False
+        abort_code = ABORT_NONE
+        # ---- the board's checks first (main.cpp:413-420): axis checks and the watchdog,
+        # in every state; a failed check disarms the motor
+        for a in range(2):
+            if C[b, a, C_WD_ENABLE] > 0.0:
+                # axis.cpp:171-182: counts down while enabled, IDLE included; at 0 the
+                # error is set (and stays set while the watchdog is not fed)
+                if AS[b, a, S_WD_TIMER] > 0.0:
+                    AS[b, a, S_WD_TIMER] -= 1.0
                 else:
-                    if mode == MODE_POSITION:
-                        vel_des = C[b, a, C_POS_GAIN] * (C[b, a, C_INPUT_POS] - pe) + C[b, a, C_INPUT_VEL]
-                    else:
-                        vel_des = C[b, a, C_INPUT_VEL]
-                    vel_des = min(max(vel_des, -vel_limit), vel_limit)
-                    verr = vel_des - ve
-                    torque = vel_gain * verr + AS[b, a, S_INTEGRATOR] + C[b, a, C_INPUT_TORQUE]
-                limited = False
-                if torque > t_lim:
-                    torque = t_lim
-                    limited = True
-                elif torque < -t_lim:
-                    torque = -t_lim
-                    limited = True
-                if mode != MODE_TORQUE:
-                    if limited:
-                        AS[b, a, S_INTEGRATOR] *= 0.99
-                    else:
-                        AS[b, a, S_INTEGRATOR] += C[b, a, C_VEL_INT_GAIN] * dt * verr
-                alpha = 1.0 - math.exp(-C[b, a, C_CURRENT_BW] * dt)
-                iq = AS[b, a, S_IQ] + alpha * (torque / kt - AS[b, a, S_IQ])
+                    AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
+            if AI[b, a, I_AXIS_ERR] != 0:
+                AI[b, a, I_MODE] = MODE_IDLE
+        ibus_sum = 0.0
+        for a in range(2):
+            j = j_of_a0 if a == 0 else 1 - j_of_a0
+            q = X[b, 2 * j]
+            turns = dirn * (q - DRV[3 + j]) * N / two_pi
+            raw = turns * cpr + enc_noise * _normal(RNG, b)
+            off = C[b, a, C_COUNT_OFFSET]
+            counts = (math.floor(raw + 0.5) if DRV[9] > 0.0 else raw) + off
+            AI[b, a, I_COUNTS] = np.int64(math.floor(raw + 0.5) + off)
+            AS[b, a, S_COUNT_F] = counts
+            # PLL estimator (firmware: kp = 2 bw, ki = kp^2 / 4)
+            kp = 2.0 * C[b, a, C_ENCODER_BW]
+            ki = 0.25 * kp * kp
+            pe = AS[b, a, S_POS_EST] + dt * AS[b, a, S_VEL_EST]
+            delta = counts / cpr - pe
+            pe += dt * kp * delta
+            ve = AS[b, a, S_VEL_EST] + dt * ki * delta
+            if abs(ve) < 0.5 * dt * ki / cpr:
+                ve = 0.0
+            AS[b, a, S_POS_EST] = pe
+            AS[b, a, S_VEL_EST] = ve
+            mode = AI[b, a, I_MODE]
+            if mode == MODE_CALIB:
+                # open-loop lock/scan at calibration_current (encoder.cpp:328-461): the
+                # rotor follows the electrical angle through a torque ~ sin(pole_pairs * error)
+                AS[b, a, S_CAL_POS] += C[b, a, C_CAL_VEL] * dt
+                # the current ramps towards calibration_current at C_CAL_RAMP [A/s]
+                i_tgt = C[b, a, C_CAL_CURRENT]
+                step_i = C[b, a, C_CAL_RAMP] * dt
+                i_now = AS[b, a, S_CAL_I]
+                i_now = min(i_now + step_i, i_tgt) if i_now < i_tgt else max(i_now - step_i, i_tgt)
+                AS[b, a, S_CAL_I] = i_now
+                pp = DRV[10]
+                iq = i_now * math.sin(two_pi * pp * (AS[b, a, S_CAL_POS] - turns))
                 AS[b, a, S_IQ] = iq
-                iq_meas = iq + cur_noise * _normal(RNG, b)
-                AS[b, a, S_IQ_MEAS] = iq_meas
-                if abs(iq_meas) > C[b, a, C_CURRENT_LIM] + CURRENT_LIM_MARGIN:
-                    AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_CURRENT_LIMIT_VIOLATION
-                    AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
-                    AI[b, a, I_MODE] = MODE_IDLE
-                    AS[b, a, S_IQ] = 0.0
-                    iq = 0.0
-                # the motor's own torque constant makes the torque; the configured one only
-                # converts the torque command to a current
+                AS[b, a, S_IQ_MEAS] = iq + cur_noise * _normal(RNG, b)
+                AS[b, a, S_INTEGRATOR] = 0.0
                 tau[j] = dirn * N * DRV[8] * iq
-            if abort_now:
-                for a in range(2):
-                    AI[b, a, I_MODE] = MODE_IDLE
-                    AS[b, a, S_IQ] = 0.0
-                    AS[b, a, S_INTEGRATOR] = 0.0
-                tau[0] = 0.0
-                tau[1] = 0.0
-                if ABORT[b, 1] == ABORT_NONE:
-                    ABORT[b, 0] = k
-                    ABORT[b, 1] = abort_code
-            # ---- mechanics
-            q1, dq1, q2, dq2 = X[b, 0], X[b, 1], X[b, 2], X[b, 3]
-            if MECH[b] == 0:
-                r5 = _fivebar_dynamics(q1, q2, dq1, dq2, P[b])
-                d11, d12, d22, b1, b2 = r5[0], r5[1], r5[2], r5[3], r5[4]
+                w = AS[b, a, S_VEL_EST] * two_pi
+                ib = (1.5 * DRV[11] * i_now ** 2 + DRV[8] * iq * w) / C[b, 0, C_VBUS]
+                AS[b, a, S_IBUS_MOTOR] = ib
+                ibus_sum += ib
+                continue
+            vel_limit = C[b, a, C_VEL_LIMIT]
+            if mode != MODE_IDLE and abs(ve) > vel_limit * C[b, a, C_VEL_TOL]:
+                AI[b, a, I_CTRL_ERR] |= CONTROLLER_ERROR_OVERSPEED
+                AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_CONTROLLER_FAILED
+                mode = MODE_IDLE
+            if mode == MODE_IDLE:
+                AI[b, a, I_MODE] = MODE_IDLE
+                AS[b, a, S_IQ] = 0.0
+                AS[b, a, S_INTEGRATOR] = 0.0
+                AS[b, a, S_IQ_MEAS] = 0.0
+                AS[b, a, S_IBUS_MOTOR] = 0.0
+                tau[j] = 0.0
+                continue
+            # ---- input modes (controller.cpp:183-283): setpoints from the inputs
+            imode = int(C[b, a, C_INPUT_MODE])
+            if imode == INPUT_MODE_PASSTHROUGH:
+                AS[b, a, S_POS_SP] = C[b, a, C_INPUT_POS]
+                AS[b, a, S_VEL_SP] = C[b, a, C_INPUT_VEL]
+                AS[b, a, S_TQ_SP] = C[b, a, C_INPUT_TORQUE]
+            elif imode == INPUT_MODE_POS_FILTER:
+                fki = 2.0 * min(C[b, a, C_FILTER_BW], 0.25 / dt)
+                fkp = 0.25 * fki * fki
+                acc = fkp * (C[b, a, C_INPUT_POS] - AS[b, a, S_POS_SP]) + fki * (C[b, a, C_INPUT_VEL] - AS[b, a, S_VEL_SP])
+                AS[b, a, S_TQ_SP] = 0.0  # acceleration times config.inertia (0 by default)
+                AS[b, a, S_VEL_SP] += dt * acc
+                AS[b, a, S_POS_SP] += dt * AS[b, a, S_VEL_SP]
+            elif imode == INPUT_MODE_TRAP_TRAJ:
+                if AI[b, a, I_TRAJ_DONE] == 0:
+                    tt = AS[b, a, S_TT_T]
+                    ta, tv, td = C[b, a, C_TT_TA], C[b, a, C_TT_TV], C[b, a, C_TT_TD]
+                    if tt > ta + tv + td:
+                        AI[b, a, I_TRAJ_DONE] = 1
+                        AS[b, a, S_POS_SP] = C[b, a, C_TT_XF]
+                        AS[b, a, S_VEL_SP] = 0.0
+                        AS[b, a, S_TQ_SP] = 0.0
+                        if mode != MODE_POSITION:
+                            mode = MODE_POSITION
+                            AI[b, a, I_MODE] = MODE_POSITION
+                    else:
+                        if tt < 0.0:
+                            y, yd = C[b, a, C_TT_XI], C[b, a, C_TT_VI]
+                        elif tt < ta:
+                            y = C[b, a, C_TT_XI] + C[b, a, C_TT_VI] * tt + 0.5 * C[b, a, C_TT_AR] * tt * tt
+                            yd = C[b, a, C_TT_VI] + C[b, a, C_TT_AR] * tt
+                        elif tt < ta + tv:
+                            y = C[b, a, C_TT_YACC] + C[b, a, C_TT_VR] * (tt - ta)
+                            yd = C[b, a, C_TT_VR]
+                        else:
+                            tdd = tt - (ta + tv + td)
+                            y = C[b, a, C_TT_XF] + 0.5 * C[b, a, C_TT_DR] * tdd * tdd
+                            yd = C[b, a, C_TT_DR] * tdd
+                        AS[b, a, S_POS_SP] = y
+                        AS[b, a, S_VEL_SP] = yd
+                        AS[b, a, S_TQ_SP] = 0.0
+                        AS[b, a, S_TT_T] = tt + dt
+            # INPUT_MODE_INACTIVE: the setpoints stay as they are
+            kt = C[b, a, C_KT]
+            vel_gain = C[b, a, C_VEL_GAIN]
+            t_lim = C[b, a, C_CURRENT_LIM] * kt
+            verr = 0.0
+            if mode == MODE_POSITION and C[b, a, C_ABORT_ERROR] > 0.0:
+                err = AS[b, a, S_POS_SP] - pe
+                if abs(err) > C[b, a, C_ABORT_ERROR]:
+                    abort_now = True
+                    abort_code = ABORT_POSITION_ERROR
+                elif oscillation_update(AS[b, a, S_OSC:S_OSC + N_OSC], err, 0.025 * C[b, a, C_ABORT_ERROR]):
+                    abort_now = True
+                    abort_code = ABORT_OSCILLATION
+            if mode == MODE_TORQUE:
+                if n_tab > 0:
+                    row = min(k // tt_period, n_tab - 1)
+                    torque = TT[b, row, a]
+                else:
+                    torque = AS[b, a, S_TQ_SP]
+                # firmware's enable_torque_mode_vel_limit
+                t_max = (vel_limit - ve) * vel_gain
+                t_min = (-vel_limit - ve) * vel_gain
+                torque = min(max(torque, t_min), t_max)
             else:
-                d11, d12, d22, b1, b2 = FR[b, 11], 0.0, FR[b, 12], 0.0, 0.0
-            f1 = FR[b, 0] * dq1 + (FR[b, 2] + FR[b, 4] * math.exp(-(dq1 / FR[b, 6]) ** 2)) * math.tanh(dq1 / FR[b, 7])
-            f2 = FR[b, 1] * dq2 + (FR[b, 3] + FR[b, 5] * math.exp(-(dq2 / FR[b, 6]) ** 2)) * math.tanh(dq2 / FR[b, 7])
-            t1 = tau[0] - b1 - f1
-            t2 = tau[1] - b2 - f2
-            if MECH[b] == 0:
-                gap = q2 - q1
-                if gap < FR[b, 8]:
-                    push = FR[b, 9] * (FR[b, 8] - gap) - FR[b, 10] * (dq2 - dq1)
-                    if push > 0.0:
-                        t1 -= push
-                        t2 += push
-                elif gap > FR[b, 13]:
-                    pull = FR[b, 9] * (gap - FR[b, 13]) + FR[b, 10] * (dq2 - dq1)
-                    if pull > 0.0:
-                        t1 += pull
-                        t2 -= pull
-            det = d11 * d22 - d12 * d12
-            a1 = (d22 * t1 - d12 * t2) / det
-            a2 = (-d12 * t1 + d11 * t2) / det
-            if not (math.isfinite(a1) and math.isfinite(a2)):
+                vel_sp = min(max(AS[b, a, S_VEL_SP], -vel_limit), vel_limit)
+                if mode == MODE_POSITION:
+                    vel_des = C[b, a, C_POS_GAIN] * (AS[b, a, S_POS_SP] - pe) + vel_sp
+                else:
+                    vel_des = vel_sp
+                vel_des = min(max(vel_des, -vel_limit), vel_limit)
+                verr = vel_des - ve
+                torque = vel_gain * verr + AS[b, a, S_INTEGRATOR] + AS[b, a, S_TQ_SP]
+            limited = False
+            if torque > t_lim:
+                torque = t_lim
+                limited = True
+            elif torque < -t_lim:
+                torque = -t_lim
+                limited = True
+            # controller.cpp:408-420: the integrator is reset in torque control (where the
+            # firmware version does so), decays while limited, and is clamped
+            if mode == MODE_TORQUE:
+                if C[b, a, C_INT_RESET_TORQUE] > 0.0:
+                    AS[b, a, S_INTEGRATOR] = 0.0
+            else:
+                if limited:
+                    AS[b, a, S_INTEGRATOR] *= 0.99
+                else:
+                    AS[b, a, S_INTEGRATOR] += C[b, a, C_VEL_INT_GAIN] * dt * verr
+                lim = C[b, a, C_VEL_INT_LIMIT]
+                AS[b, a, S_INTEGRATOR] = min(max(AS[b, a, S_INTEGRATOR], -lim), lim)
+            alpha = 1.0 - math.exp(-C[b, a, C_CURRENT_BW] * dt)
+            iq = AS[b, a, S_IQ] + alpha * (torque / kt - AS[b, a, S_IQ])
+            AS[b, a, S_IQ] = iq
+            iq_meas = iq + cur_noise * _normal(RNG, b)
+            AS[b, a, S_IQ_MEAS] = iq_meas
+            if abs(iq_meas) > C[b, a, C_CURRENT_LIM] + CURRENT_LIM_MARGIN:
+                AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_CURRENT_LIMIT_VIOLATION
+                AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
+                AI[b, a, I_MODE] = MODE_IDLE
+                AS[b, a, S_IQ] = 0.0
+                iq = 0.0
+            # the motor's own torque constant makes the torque; the configured one only
+            # converts the torque command to a current
+            tau[j] = dirn * N * DRV[8] * iq
+            # this motor's bus current: copper loss plus mechanical power over vbus
+            w = ve * two_pi
+            ib = (1.5 * DRV[11] * iq * iq + DRV[8] * iq * w) / C[b, 0, C_VBUS]
+            AS[b, a, S_IBUS_MOTOR] = ib
+            ibus_sum += ib
+        # ---- the DC bus (low_level.cpp:320-376): brake resistor, then the bus limits
+        brake_i = 0.0
+        if C[b, 0, C_BRAKE_ON] > 0.0:
+            brake_i = -ibus_sum - C[b, 0, C_MAX_REGEN]
+            duty = brake_i * C[b, 0, C_BRAKE_R] / C[b, 0, C_VBUS]
+            duty = min(max(duty, 0.0), 0.95)
+            brake_i = duty * C[b, 0, C_VBUS] / C[b, 0, C_BRAKE_R]
+            ibus_sum += brake_i
+        AS[b, 0, S_BRAKE_I] = brake_i
+        AS[b, 0, S_IBUS] = ibus_sum
+        bus_fault = 0
+        if ibus_sum > C[b, 0, C_DC_MAX_POS]:
+            bus_fault = 1
+        elif ibus_sum < C[b, 0, C_DC_MAX_NEG]:
+            bus_fault = 2
+        if bus_fault:
+            for a in range(2):
+                if C[b, 0, C_REGEN_ERR_STYLE] > 0.0:   # 0.5.1: low_level_fault on the motors
+                    AI[b, a, I_MOTOR_ERR] |= (MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT if bus_fault == 2
+                                               else MOTOR_ERROR_DC_BUS_OVER_CURRENT)
+                else:                                  # 0.5.2+: odrv.disarm_with_error
+                    AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_SYSTEM_LEVEL
+                AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
+                AI[b, a, I_MODE] = MODE_IDLE
+                AS[b, a, S_IQ] = 0.0
+                AS[b, a, S_INTEGRATOR] = 0.0
+            if C[b, 0, C_REGEN_ERR_STYLE] <= 0.0:
+                AI[b, 0, I_SYS_ERR] |= (ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT if bus_fault == 2
+                                        else ODRIVE_ERROR_DC_BUS_OVER_CURRENT)
+            tau[0] = 0.0
+            tau[1] = 0.0
+        if abort_now:
+            for a in range(2):
+                AI[b, a, I_MODE] = MODE_IDLE
+                AS[b, a, S_IQ] = 0.0
+                AS[b, a, S_INTEGRATOR] = 0.0
+            tau[0] = 0.0
+            tau[1] = 0.0
+            if ABORT[b, 1] == ABORT_NONE:
                 ABORT[b, 0] = k
-                ABORT[b, 1] = ABORT_NONFINITE
-                for a in range(2):
-                    AI[b, a, I_MODE] = MODE_IDLE
-                break
-            dq1 += a1 * dt
-            dq2 += a2 * dt
-            X[b, 0] = q1 + dq1 * dt
-            X[b, 1] = dq1
-            X[b, 2] = q2 + dq2 * dt
-            X[b, 3] = dq2
-            X[b, 4] += dt
+                ABORT[b, 1] = abort_code
+        # ---- mechanics
+        q1, dq1, q2, dq2 = X[b, 0], X[b, 1], X[b, 2], X[b, 3]
+        if MECH[b] == 0:
+            r5 = _fivebar_dynamics(q1, q2, dq1, dq2, P[b])
+            d11, d12, d22, b1, b2 = r5[0], r5[1], r5[2], r5[3], r5[4]
+        else:
+            d11, d12, d22, b1, b2 = FR[b, 11], 0.0, FR[b, 12], 0.0, 0.0
+        f1 = FR[b, 0] * dq1 + (FR[b, 2] + FR[b, 4] * math.exp(-(dq1 / FR[b, 6]) ** 2)) * math.tanh(dq1 / FR[b, 7])
+        f2 = FR[b, 1] * dq2 + (FR[b, 3] + FR[b, 5] * math.exp(-(dq2 / FR[b, 6]) ** 2)) * math.tanh(dq2 / FR[b, 7])
+        t1 = tau[0] - b1 - f1
+        t2 = tau[1] - b2 - f2
+        if MECH[b] == 0:
+            gap = q2 - q1
+            if gap < FR[b, 8]:
+                push = FR[b, 9] * (FR[b, 8] - gap) - FR[b, 10] * (dq2 - dq1)
+                if push > 0.0:
+                    t1 -= push
+                    t2 += push
+            elif gap > FR[b, 13]:
+                pull = FR[b, 9] * (gap - FR[b, 13]) + FR[b, 10] * (dq2 - dq1)
+                if pull > 0.0:
+                    t1 += pull
+                    t2 -= pull
+        det = d11 * d22 - d12 * d12
+        a1 = (d22 * t1 - d12 * t2) / det
+        a2 = (-d12 * t1 + d11 * t2) / det
+        if not (math.isfinite(a1) and math.isfinite(a2)):
+            ABORT[b, 0] = k
+            ABORT[b, 1] = ABORT_NONFINITE
+            for a in range(2):
+                AI[b, a, I_MODE] = MODE_IDLE
+            break
+        dq1 += a1 * dt
+        dq2 += a2 * dt
+        X[b, 0] = q1 + dq1 * dt
+        X[b, 1] = dq1
+        X[b, 2] = q2 + dq2 * dt
+        X[b, 3] = dq2
+        X[b, 4] += dt
 
 
 # ---------------------------------------------------------------------------------------
@@ -396,7 +549,8 @@ class Twin:
         motor = self.motor
         self.DRV = np.array([ax.gear_ratio, ax.cpr, ax.direction, ax.q_rest[0], ax.q_rest[1],
                              ax.joint_of_axis(0), p.encoder_noise if noise else 0.0,
-                             p.current_noise if noise else 0.0, motor.torque_constant, 1.0 if quantize else 0.0])
+                             p.current_noise if noise else 0.0, motor.torque_constant, 1.0 if quantize else 0.0,
+                             float(motor.pole_pairs), motor.phase_resistance])
         self.state = self._initial_state(batch)
 
     # -- state -----------------------------------------------------------------------
@@ -414,6 +568,18 @@ class Twin:
         C[:, :, C_KT] = cfg.torque_constant
         C[:, :, C_CURRENT_BW] = cfg.current_control_bandwidth
         C[:, :, C_ENCODER_BW] = cfg.encoder_bandwidth
+        C[:, :, C_VEL_INT_LIMIT] = np.inf           # firmware default (0.5.4+)
+        C[:, :, C_INPUT_MODE] = INPUT_MODE_PASSTHROUGH
+        C[:, :, C_FILTER_BW] = 2.0                  # firmware default input_filter_bandwidth
+        C[:, :, C_INT_RESET_TORQUE] = 1.0
+        C[:, :, C_CAL_CURRENT] = 10.0               # firmware default calibration_current
+        # the board as leglib configures it: brake resistor on, the firmware's bus limits
+        C[:, 0, C_BRAKE_ON] = 1.0
+        C[:, 0, C_BRAKE_R] = cfg.brake_resistance
+        C[:, 0, C_MAX_REGEN] = 0.0
+        C[:, 0, C_DC_MAX_POS] = np.inf
+        C[:, 0, C_DC_MAX_NEG] = -0.01
+        C[:, 0, C_VBUS] = 24.0
         st = TwinState(X=X, AS=np.zeros((batch, 2, N_AXSTATE)), AI=np.zeros((batch, 2, N_AXINT), np.int64),
                        C=C, RNG=seeds_for(self.seed, [(i,) for i in range(batch)]),
                        ABORT=np.zeros((batch, 2), np.int64))
@@ -441,13 +607,19 @@ class Twin:
         n = int(ticks) if ticks is not None else int(round(seconds / self.dt))
         if n <= 0:
             return
-        tt = np.zeros((st.batch, 0, 2)) if torque_table is None else np.ascontiguousarray(torque_table, float)
+        B = st.batch
+        fixed = self.__dict__.setdefault("_fixed", {})
+        if B not in fixed:  # per-batch-size constant arrays, built once (host loops call run often)
+            fixed[B] = (np.ascontiguousarray(np.broadcast_to(self.P, (B, self.P.size))),
+                        np.ascontiguousarray(np.broadcast_to(self.FR, (B, self.FR.size))),
+                        np.full(B, self.mech, np.int64), np.zeros((B, 0, 2)), np.zeros((B, 0, 5)))
+        P, FR, MECH, no_table, no_rec = fixed[B]
+        tt = no_table if torque_table is None else np.ascontiguousarray(torque_table, float)
         tt_period = 1 if table_period is None else max(1, int(round(table_period / self.dt)))
-        rec = np.zeros((st.batch, 0, 5)) if record is None else record
-        _run(n, self.dt, st.X, st.AS, st.AI, st.C, np.ascontiguousarray(np.broadcast_to(self.P, (st.batch, self.P.size))),
-             np.ascontiguousarray(np.broadcast_to(self.FR, (st.batch, self.FR.size))),
-             np.full(st.batch, self.mech, np.int64), self.DRV, st.RNG, st.ABORT, tt, tt_period,
-             rec, int(record_every), int(record_offset))
+        rec = no_rec if record is None else record
+        kernel = _run_serial if B == 1 else _run
+        kernel(n, self.dt, st.X, st.AS, st.AI, st.C, P, FR, MECH, self.DRV, st.RNG, st.ABORT, tt, tt_period,
+               rec, int(record_every), int(record_offset))
 
     def step_batch(self, gains: np.ndarray, step_turns: float = 0.4, duration: float = 1.5,
                    sample_period: float = 0.002, vel_limit: float | None = None,
@@ -490,6 +662,7 @@ class Twin:
             st.C[:, a, C_INPUT_TORQUE] = 0.0
             st.C[:, a, C_INPUT_POS] = st.AS[:, a, S_POS_EST] + sign * step_turns
             st.C[:, a, C_ABORT_ERROR] = abort
+            st.C[:, a, C_INPUT_MODE] = INPUT_MODE_PASSTHROUGH
             st.AI[:, a, I_MODE] = MODE_POSITION
             st.AS[:, a, S_INTEGRATOR] = 0.0
             st.AS[:, a, S_OSC:S_OSC + N_OSC] = 0.0

@@ -70,13 +70,20 @@ def odrv():
     for a in (dev.axis0, dev.axis1):
         a.encoder.config.cpr = 4000
         a.motor.config.pole_pairs = 11
+    dev.config.enable_brake_resistor = True
+    dev.clear_errors()   # arms the brake resistor
     return dev
 
 
 def _calibrate(odrv):
     for a in (odrv.axis0, odrv.axis1):
         a.requested_state = V.AXIS_STATE_FULL_CALIBRATION_SEQUENCE
-    odrv.sleep(odrv.twin.plant.calibration_time + 0.1)
+    odrv.sleep(V.CALIBRATION_DURATION + 0.1)
+
+
+def _closed_loop(odrv, ax):
+    ax.requested_state = V.AXIS_STATE_CLOSED_LOOP_CONTROL
+    odrv.sleep(0.002)   # the axis thread takes the request up within 1 ms
 
 
 def test_object_tree_is_strict(odrv):
@@ -88,23 +95,29 @@ def test_object_tree_is_strict(odrv):
         odrv.axis0.encoder.pos_estimate = 1.0
     with pytest.raises(TypeError):
         odrv.axis0.controller.config.pos_gain = "fast"
+    with pytest.raises(ValueError, match="vel_limit"):
+        odrv.axis0.controller.config.vel_limit = float("nan")
     odrv.axis0.controller.config.pos_gain = 33
     assert odrv.axis0.controller.config.pos_gain == 33.0
-    assert odrv.fw_version_minor == 5 and odrv.config.brake_resistance == pytest.approx(2.05)
+    assert odrv.fw_version_minor == 5 and odrv.fw_version_revision == 6
+    assert odrv.config.brake_resistance == pytest.approx(2.0)   # DEFAULT_BRAKE_RESISTANCE
 
 
 def test_state_machine_calibration_takes_time_and_gates_closed_loop(odrv):
-    odrv.axis0.requested_state = V.AXIS_STATE_CLOSED_LOOP_CONTROL
+    _closed_loop(odrv, odrv.axis0)
     assert odrv.axis0.current_state == V.AXIS_STATE_IDLE
     assert odrv.axis0.error & V.AXIS_ERROR_INVALID_STATE
-    odrv.axis0.error = 0
     odrv.axis0.requested_state = V.AXIS_STATE_FULL_CALIBRATION_SEQUENCE
+    odrv.axis1.requested_state = V.AXIS_STATE_FULL_CALIBRATION_SEQUENCE
+    odrv.sleep(0.002)
     assert odrv.axis0.current_state == V.AXIS_STATE_MOTOR_CALIBRATION
-    odrv.sleep(0.8 * odrv.twin.plant.calibration_time)
+    assert not odrv.axis0.error & V.AXIS_ERROR_INVALID_STATE   # cleared by the new request
+    odrv.sleep(V.R_MEASUREMENT_TIME + V.L_MEASUREMENT_TIME + 0.5)
     assert odrv.axis0.current_state == V.AXIS_STATE_ENCODER_OFFSET_CALIBRATION
-    odrv.sleep(0.3 * odrv.twin.plant.calibration_time)
-    assert odrv.axis0.current_state == V.AXIS_STATE_IDLE and odrv.axis0.motor.is_calibrated
-    odrv.axis0.requested_state = V.AXIS_STATE_CLOSED_LOOP_CONTROL
+    assert odrv.axis0.motor.is_calibrated and not odrv.axis0.encoder.is_ready
+    odrv.sleep(V.CALIBRATION_DURATION)
+    assert odrv.axis0.current_state == V.AXIS_STATE_IDLE and odrv.axis0.encoder.is_ready
+    _closed_loop(odrv, odrv.axis0)
     assert odrv.axis0.current_state == V.AXIS_STATE_CLOSED_LOOP_CONTROL
 
 
@@ -113,17 +126,19 @@ def test_wrong_cpr_fails_calibration():
     odrv.axis0.encoder.config.cpr = 8192  # the encoder has 4000
     odrv.axis0.motor.config.pole_pairs = 11
     odrv.axis0.requested_state = V.AXIS_STATE_FULL_CALIBRATION_SEQUENCE
-    odrv.sleep(odrv.twin.plant.calibration_time + 0.1)
+    odrv.sleep(V.CALIBRATION_DURATION + 0.1)
     assert odrv.axis0.encoder.error & V.ENCODER_ERROR_CPR_POLEPAIRS_MISMATCH
-    assert not odrv.axis0.motor.is_calibrated
+    assert odrv.axis0.error & V.AXIS_ERROR_ENCODER_FAILED
+    assert not odrv.axis0.encoder.is_ready
 
 
 def test_watchdog_trips_when_not_fed(odrv):
     _calibrate(odrv)
     ax = odrv.axis1
     ax.config.watchdog_timeout = 0.1
+    ax.watchdog_feed()
     ax.config.enable_watchdog = True
-    ax.requested_state = V.AXIS_STATE_CLOSED_LOOP_CONTROL
+    _closed_loop(odrv, ax)
     for _ in range(10):
         odrv.sleep(0.05)
         ax.watchdog_feed()
@@ -139,7 +154,7 @@ def test_overspeed_drops_axis_to_idle(odrv):
     ax.controller.config.vel_limit = 12.0
     ax.controller.config.pos_gain = 50.0
     ax.controller.config.vel_gain = 0.05
-    ax.requested_state = V.AXIS_STATE_CLOSED_LOOP_CONTROL
+    _closed_loop(odrv, ax)
     ax.controller.input_pos = ax.encoder.pos_estimate + 0.4
     odrv.sleep(0.03)
     assert abs(ax.encoder.vel_estimate) > 1.0
@@ -155,9 +170,12 @@ def test_current_limit_violation_sets_motor_error():
     for a in (odrv.axis0, odrv.axis1):
         a.encoder.config.cpr = 4000
         a.motor.config.pole_pairs = 11
+    odrv.config.enable_brake_resistor = True
+    odrv.clear_errors()
     _calibrate(odrv)
+    odrv.clear_errors()   # the noisy calibration current may have flagged too
     odrv.axis0.motor.config.current_lim = 1.0
-    odrv.axis0.requested_state = V.AXIS_STATE_CLOSED_LOOP_CONTROL
+    _closed_loop(odrv, odrv.axis0)
     odrv.sleep(0.05)
     assert odrv.axis0.motor.error & T.MOTOR_ERROR_CURRENT_LIMIT_VIOLATION
     assert odrv.axis0.current_state == V.AXIS_STATE_IDLE
@@ -181,17 +199,6 @@ def test_each_transaction_costs_latency(odrv):
         odrv.axis0.encoder.shadow_count
     lat = odrv.twin.plant.usb_latency
     assert 80 * lat < odrv.time - t0 < 120 * lat
-
-
-def test_firmware_06_tree():
-    odrv = V.VirtualODrive(firmware="0.6")
-    assert odrv.fw_version_minor == 6
-    odrv.axis0.pos_estimate
-    odrv.axis0.config.motor.current_soft_max = 12.0
-    with pytest.raises(AttributeError):
-        odrv.axis0.encoder
-    with pytest.raises(AttributeError):
-        odrv.axis0.motor.config
 
 
 def _monitor(signal, min_amp=0.01):
@@ -221,11 +228,16 @@ def test_usb_polling_path_on_the_twin_agrees_with_the_kernel_path():
     io.apply_configuration(dev)
     io.calibrate(dev)
     polled = io._step_usb(dev, (50.0, 0.046, 0.001), 0.4, 1.5, 0.002, 12.0, 0.8)
+    dev.sleep(2.0)   # the leg falls back onto its stop (step_response's settle)
     batch = io.step_response(dev, 50.0, 0.046, 0.001)
     assert polled.completed
     n = min(len(polled.t), len(batch.t))
     # same leg, same gains: the responses agree up to the polling loop's timing
-    assert np.max(np.abs(polled.q2[:n] - np.interp(polled.t[:n], batch.t, batch.q2))) < np.radians(2.0)
+    # the leg falls back to a rest pose a little different each time (friction): compare
+    # the motion from where each step started
+    moved_polled = polled.q2[:n] - polled.q2[0]
+    moved_batch = np.interp(polled.t[:n], batch.t, batch.q2 - batch.q2[0])
+    assert np.max(np.abs(moved_polled - moved_batch)) < np.radians(2.0)
     unstable = io._step_usb(dev, (50.0, 0.002, 0.08), 0.4, 1.5, 0.002, 12.0, 0.8)
     assert not unstable.completed and "oscillation" in unstable.abort_reason
     assert all(int(dev.get(a, "current_state")) == 1 for a in (0, 1))
