@@ -54,7 +54,7 @@ def bench_twin_thesis_grid():
     grid = io.thesis_grid()
 
     def run():
-        out = dev.raw.step_batch(grid, vel_limit=dev.config.step_vel_limit, abort_error_turns=0.8)
+        out = dev.sim.step_batch(grid, vel_limit=dev.config.step_vel_limit, abort_error_turns=0.8)
         io._responses_from_batch(dev, grid, out, 0.4)
     return {**timed(run, repeat=5), "target_s": 5.0, "points": len(grid)}
 
@@ -77,7 +77,7 @@ def bench_sweep_map_pipeline():
     grid = io.thesis_grid()
 
     def run():
-        out = dev.raw.step_batch(grid, vel_limit=dev.config.step_vel_limit, abort_error_turns=0.8)
+        out = dev.sim.step_batch(grid, vel_limit=dev.config.step_vel_limit, abort_error_turns=0.8)
         gm = GM.GainMap.from_responses(io._responses_from_batch(dev, grid, out, 0.4))
         gm.gains_for(0.24, 5.0)
     return {**timed(run, repeat=5), "target_s": 5.0, "points": len(grid)}

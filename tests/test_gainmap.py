@@ -100,7 +100,7 @@ def twin_sweep(tmp_path_factory):
 def test_map_from_files_equals_map_from_responses(twin_sweep):
     odrv, grid, out = twin_sweep
     from_files = GM.GainMap.from_measurements(out)
-    resp = io._responses_from_batch(odrv, grid, odrv.raw.step_batch(
+    resp = io._responses_from_batch(odrv, grid, odrv.sim.step_batch(
         grid, vel_limit=odrv.config.step_vel_limit, abort_error_turns=0.8), 0.4)
     from_mem = GM.GainMap.from_responses(resp, workers=1)
     assert from_files.counts() == from_mem.counts()

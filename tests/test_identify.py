@@ -141,7 +141,7 @@ def twin_run():
 def test_leg_friction_recovers_the_twins_truth_within_5_percent(twin_run):
     from leglib.params import load_leg
     dev, run = twin_run
-    truth = dev.raw.twin.plant
+    truth = dev.sim.twin.plant
     f = fit_leg_friction(run, load_leg("thesis"), starts=2)
     for name, true in (("viscous1", truth.viscous1), ("viscous2", truth.viscous2),
                        ("coulomb1", truth.coulomb1), ("coulomb2", truth.coulomb2),

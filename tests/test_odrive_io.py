@@ -33,7 +33,7 @@ def test_listing_71_configuration_reads_back_and_is_saved():
         assert d.get(a, "current_lim") == 10.0 and d.get(a, "cpr") == 4000
         assert d.get(a, "torque_constant") == pytest.approx(8.27 / 340)
     assert written["brake_resistance"] == 2.05
-    assert d.raw.saved_configuration["axes"][0]["cpr"] == 4000
+    assert d.sim.saved_configuration["axes"][0]["cpr"] == 4000
 
 
 def test_listing_72_calibration_then_closed_loop(dev):
@@ -155,12 +155,12 @@ def test_injected_disconnect_mid_sweep_then_resume(tmp_path):
     d = io.connect("virtual", seed=5)
     io.apply_configuration(d)
     io.calibrate(d)
-    d.raw.disconnect_after = d.raw.transactions + 2  # two batches, then the link dies
+    d.sim.disconnect_after = d.sim.transactions + 2  # two batches, then the link dies
     with pytest.warns(UserWarning, match="could not set IDLE"):
         with pytest.raises(V.DeviceLostError):
             io.sweep(d, GRID, tmp_path, chunk=2, progress=False)
     assert len(dataio.list_measurements(tmp_path)) == 4
-    assert np.all(d.raw.st.AI[0, :, T.I_MODE] == T.MODE_IDLE)
+    assert np.all(d.sim.st.AI[0, :, T.I_MODE] == T.MODE_IDLE)
     d2 = io.connect("virtual", seed=5)
     io.apply_configuration(d2)
     io.calibrate(d2)
@@ -169,15 +169,15 @@ def test_injected_disconnect_mid_sweep_then_resume(tmp_path):
 
 
 def test_disconnect_in_closed_loop_watchdog_idles_the_motors(dev):
-    dev.raw.disconnect_after = dev.raw.transactions + 40
+    dev.sim.disconnect_after = dev.sim.transactions + 40
     tau = np.full((500, 2), 0.01)
     with pytest.warns(UserWarning):
         with pytest.raises(V.DeviceLostError):
             io.play_torque_table(dev, tau)
-    assert np.any(dev.raw.st.AI[0, :, T.I_MODE] != T.MODE_IDLE)  # still energized ...
-    dev.raw.twin.run(dev.raw.st, seconds=0.5)                     # ... until the watchdog acts
-    assert np.all(dev.raw.st.AI[0, :, T.I_MODE] == T.MODE_IDLE)
-    assert np.all(dev.raw.st.AI[0, :, T.I_AXIS_ERR] & T.AXIS_ERROR_WATCHDOG_TIMER_EXPIRED)
+    assert np.any(dev.sim.st.AI[0, :, T.I_MODE] != T.MODE_IDLE)  # still energized ...
+    dev.sim.twin.run(dev.sim.st, seconds=0.5)                     # ... until the watchdog acts
+    assert np.all(dev.sim.st.AI[0, :, T.I_MODE] == T.MODE_IDLE)
+    assert np.all(dev.sim.st.AI[0, :, T.I_AXIS_ERR] & T.AXIS_ERROR_WATCHDOG_TIMER_EXPIRED)
 
 
 def test_per_point_and_sweep_paths_agree(dev, tmp_path):
@@ -189,14 +189,21 @@ def test_per_point_and_sweep_paths_agree(dev, tmp_path):
         np.testing.assert_allclose(np.radians(m.angle2), r.q2, atol=1e-6)
 
 
-def test_firmware_06_adapter():
-    d = io.connect("virtual", firmware="0.6")
-    assert d.firmware == "0.6"
-    d.set(0, "current_lim", 7.5)
-    assert d.get(0, "current_lim") == 7.5 and d.raw.axis0.config.motor.current_soft_max == 7.5
-    assert isinstance(d.counts(0), int)
-    with pytest.raises(io.ExperimentError, match="does not exist on firmware 0.6"):
-        d.get(0, "cpr")
+def test_virtual_device_is_the_odrive_client_object():
+    """connect("virtual") wraps the odrive client's tree built over the firmware table; the
+    model (virtual clock, twin) is dev.sim. A v3.6 has no 0.6 firmware (odrive 0.6.11
+    utils.py:87-89 treats < 0.6.0 as legacy 0.5.x)."""
+    from odrive.sync_tree import SyncObject
+    d = io.connect("virtual", seed=5)
+    assert isinstance(d.raw, SyncObject) and isinstance(d.sim, V.VirtualODrive)
+    assert d.firmware == "0.5" and d.firmware_version == (0, 5, 6)
+    assert io.as_device(d.raw).sim is d.sim and io.as_device(d.raw).backend == "virtual"
+    assert io.connect("virtual", seed=5).sim is d.sim            # same seed, same device
+    assert io.connect("virtual", seed=7, firmware="0.5.1").firmware_version == (0, 5, 1)
+    with pytest.raises(ValueError, match="firmware='0.5.1'"):
+        io.connect("virtual", seed=5, firmware="0.5.1")          # seed 5 runs 0.5.6
+    with pytest.raises(ValueError, match="no 0.6 firmware"):
+        io.connect("virtual", seed=6, firmware="0.6")
 
 
 def test_connect_errors():
