@@ -407,6 +407,8 @@ class VirtualUSBDevice:
         self._transaction()
         rec = self._record
         old = rec.held.get(ep.path, rec.default(ep.path, ep.codec))
+        fmt = "<" + _FORMATS[ep.codec]
+        old = struct.unpack(fmt, struct.pack(fmt, self._to_wire(ep.codec, old)))[0]  # as on the wire
         if value != old and ep.path not in rec.warned:
             rec.warned.add(ep.path)
             warnings.warn(f"virtual ODrive: {ep.path} is not modeled; the value {value!r} is held "
