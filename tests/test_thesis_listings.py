@@ -1,10 +1,11 @@
-"""The thesis's own scripts as a conformance suite (chapter 7, Listings 7.1, 7.2, 7.4).
+"""The thesis's own scripts as a conformance suite (chapter 7, Listings 7.1-7.4).
 
 The listings are transcribed as printed in the thesis and run unmodified against the virtual
 ODrive: the only change is that ``odrive.find_any`` is replaced by
 ``leglib.virtual_odrive.find_any(realtime=True, seed=...)`` (so the scripts' ``time.sleep``
-and ``time.time()`` see the leg move in real time), ``input()`` answers Enter, and Listing
-7.4's grid is shortened. Listings 7.1 and 7.2 are odrivetool console sessions: they run
+and ``time.time()`` see the leg move in real time), ``input()`` answers Enter, Listing
+7.4's grid is shortened, and Listing 7.3 reads a torque table made here (the thesis's came
+from Simulink). Listings 7.1 and 7.2 are odrivetool console sessions: they run
 statement by statement in a namespace like odrivetool's (``odrv0``, ``odrive.enums``,
 ``odrive.utils``), where an exception ends only its statement, as at the console.
 
@@ -62,6 +63,108 @@ odrv0.axis0.controller.input_vel = 1
 odrv0.axis1.requested_state = AXIS_STATE_CLOSED_LOOP_CONTROL
 odrv0.axis1.controller.config.control_mode = CONTROL_MODE_VELOCITY_CONTROL
 odrv0.axis1.controller.input_vel = 1
+"""
+
+# Listing 7.3 as printed (the page break repeats lines 83-86; joined once here).
+LISTING_7_3 = """\
+from datetime import datetime
+import odrive
+from odrive.enums import *
+import time
+import numpy as np
+import matplotlib.pyplot as plt
+
+# Find a connected ODrive (this will block until you connect one)
+print("finding an odrive...")
+odrv0 = odrive.find_any()
+
+# Load .csv file with precalculated torque vectors
+torqueMatrix = np.loadtxt('Torque.csv', delimiter = ',')
+
+# Define time parameters
+duration = 4.5 # [s]
+sampling = 0.002 # [s]
+
+# Wait for user to press enter, then continue
+input("Press Enter to continue...")
+time.sleep(5)
+
+# Set both axis to closed loop control with torque as setpoint
+odrv0.axis0.requested_state = AXIS_STATE_CLOSED_LOOP_CONTROL
+odrv0.axis0.controller.config.control_mode = CONTROL_MODE_TORQUE_CONTROL
+
+odrv0.axis1.requested_state = AXIS_STATE_CLOSED_LOOP_CONTROL
+odrv0.axis1.controller.config.control_mode = CONTROL_MODE_TORQUE_CONTROL
+
+# Define working variables
+positionSegment1 = []
+positionSegment4 = []
+currentVector = []
+timeVector = []
+i = 0
+
+startTime = time.time()
+
+while True:
+    elapsedTime = time.time() - startTime
+
+    if elapsedTime > duration:
+        break
+
+    i = int(np.floor(elapsedTime*1000/2))
+
+    odrv0.axis1.controller.input_torque = torqueMatrix[i][0] # segment 1
+    odrv0.axis0.controller.input_torque = torqueMatrix[i][1] # segment 4
+
+    positionSegment1.append(360/4000/3 * odrv0.axis1.encoder.shadow_count)
+    positionSegment4.append(360/4000/3 * odrv0.axis0.encoder.shadow_count)
+
+    currentVector.append(odrv0.axis1.motor.current_control.Iq_measured)
+
+    timeVector.append(elapsedTime)
+
+# Stop both axis
+odrv0.axis0.controller.input_torque = 0
+odrv0.axis1.controller.input_torque = 0
+
+odrv0.axis0.requested_state = AXIS_STATE_IDLE
+odrv0.axis1.requested_state = AXIS_STATE_IDLE
+
+# Convert position vectors to numpy arrays
+positionSegment1 = np.array(positionSegment1)
+positionSegment4 = np.array(positionSegment4)
+
+positionSegment1 = positionSegment1 - positionSegment1[0] + 3
+positionSegment4 = positionSegment4 - positionSegment4[0] - 3
+
+# Plot motor position with respect to time
+plt.figure(0)
+plt.plot(timeVector, positionSegment1, color='orange', label='Segment1')
+plt.plot(timeVector, positionSegment4, color='blue', label='Segment4')
+plt.title("Position")
+plt.xlabel('time [s]')
+plt.ylabel('angle [deg]')
+plt.legend()
+
+# Load .csv file with simulation
+positionSimulation = np.loadtxt('simulation.csv', delimiter = ',')
+
+## Compare simulation and experimental results
+plt.figure(1)
+plt.plot(timeVector, positionSegment1, color='orange', label='Experiment')
+plt.plot(positionSimulation[0:int(duration/sampling), 0], positionSimulation[0:int(duration/sampling), 1], color='blue', label='Simulation')
+plt.title("Comparison simulation vs. experiment")
+plt.xlabel('time [s]')
+plt.ylabel('angle [deg]')
+plt.legend()
+
+# Save position measurement to .csv
+now = datetime.now()
+outMeasurementMatrix = np.stack((timeVector, positionSegment1, positionSegment4), axis=-1)
+np.savetxt(now.strftime("%Y%m%d_%H%M%S") + '_positions.csv', outMeasurementMatrix, fmt='%2.6f', delimiter=',')
+
+outTorqueMatrix = np.stack((positionSimulation[:, 0], torqueMatrix[:,0], torqueMatrix[:,1]), axis=-1)
+np.savetxt(now.strftime("%Y%m%d_%H%M%S") + '_torque.csv', outTorqueMatrix, fmt='%2.6f', delimiter=',')
 """
 
 # Listing 7.4 as printed, grid shortened (lines 15-17: num=4, 10, 10 in the thesis).
@@ -349,3 +452,33 @@ def test_listing_74_steps_and_files(thesis_odrive, tmp_path, monkeypatch):
     odrv0 = odrive.find_any()
     assert odrv0.axis0.current_state == 1 and odrv0.axis1.current_state == 1
     assert math.isfinite(odrv0.vbus_voltage)
+
+
+def test_listing_73_torque_table(thesis_odrive, tmp_path, monkeypatch):
+    """Listing 7.3 as a script after 7.1 and 7.2's calibration: a torque table (here a
+    0.01 N m, 1 Hz sine on axis1, zero on axis0, 2 ms rows) played in torque control; the
+    driven segment swings (the five-bar carries the other along); the positions file (thesis name
+    without gains, no sidecar) loads with ``dataio.read_measurement``, the torque file with
+    ``dataio.read_table``; both axes end IDLE."""
+    import matplotlib.pyplot as plt
+    monkeypatch.chdir(tmp_path)
+    t = 0.002 * np.arange(2300)
+    torque = np.column_stack([0.01 * np.sin(2 * np.pi * 1.0 * t), np.zeros_like(t)])
+    np.savetxt(tmp_path / "Torque.csv", torque, delimiter=",")
+    np.savetxt(tmp_path / "simulation.csv", np.column_stack([t, np.zeros_like(t)]), delimiter=",")
+    _configured_and_calibrated(thesis_odrive, 73)
+
+    exec(compile(LISTING_7_3, "listing_7_3.py", "exec"), {"__name__": "__main__"})
+    plt.close("all")
+
+    (pos_file,) = sorted(tmp_path.glob("*_positions.csv"))
+    (tq_file,) = sorted(tmp_path.glob("*_torque.csv"))
+    assert re.match(r"^\d{8}_\d{6}_positions\.csv$", pos_file.name)
+    m = dataio.read_measurement(pos_file)
+    assert m.gains is None and m.meta == {}
+    assert m.t[-1] == pytest.approx(4.5, abs=0.05)
+    assert m.angle1[0] == 3.0 and m.angle2[0] == -3.0      # the listing's +-3 deg offsets
+    assert np.ptp(m.angle1) > 2.0                           # segment 1 swings under the sine
+    assert dataio.read_table(tq_file, 3).shape == (2300, 3)
+    odrv0 = odrive.find_any()
+    assert odrv0.axis0.current_state == 1 and odrv0.axis1.current_state == 1
