@@ -15,7 +15,7 @@ Every endpoint of the table resolves:
   written and called there, each one USB transaction on the virtual clock;
 - the firmware identity (``fw_version_*``) is that of the table served;
 - every other endpoint is *unmodeled*: it holds the firmware's default value
-  (:data:`FIRMWARE_DEFAULTS`, else zero), a write that changes it warns once per device
+  (:func:`firmware_defaults`, extracted from the firmware's sources, else zero), a write that changes it warns once per device
   (:class:`UnmodeledEndpointWarning`, naming it) because the real device would change its
   behaviour, and calling an unmodeled function that acts on the device raises
   ``NotImplementedError`` naming it (queries in :data:`UNMODELED_QUERIES` return zeros).
@@ -53,42 +53,11 @@ SERIAL_BASE = 0x3A7F1E2D4B00  # the model's serial_number is SERIAL_BASE + seed
 _FORMATS = {"int8": "b", "uint8": "B", "int16": "h", "uint16": "H", "int32": "i", "uint32": "I",
             "int64": "q", "uint64": "Q", "bool": "?", "float": "f", "endpoint_ref": "I"}
 
-# Firmware defaults of endpoints the model does not implement, where they are not zero.
-# Keys are paths below an axis ("axis*.") or from the root; values from fw-v0.5.6 sources.
-FIRMWARE_DEFAULTS = {
-    "hw_version_variant": 24,                               # the twin's 24 V bus (board.h HW_VERSION_VOLTAGE)
-    "axis*.motor.config.calibration_current": 10.0,         # motor.hpp:21
-    "axis*.motor.config.resistance_calib_max_voltage": 2.0,  # motor.hpp:22
-    "axis*.motor.config.current_lim_margin": 8.0,           # motor.hpp:37
-    "axis*.motor.config.requested_current_range": 60.0,     # motor.hpp:40
-    "axis*.motor.config.torque_lim": float("inf"),          # motor.hpp:39
-    "axis*.motor.config.inverter_temp_limit_lower": 100.0,  # motor.hpp:41
-    "axis*.motor.config.inverter_temp_limit_upper": 120.0,  # motor.hpp:42
-    "axis*.encoder.config.mode": 0,                         # encoder.hpp:27 (MODE_INCREMENTAL)
-    "axis*.encoder.config.calib_range": 0.02,               # encoder.hpp:33
-    "axis*.encoder.config.calib_scan_distance": 16.0 * 3.14159265358979,  # encoder.hpp:34
-    "axis*.encoder.config.calib_scan_omega": 4.0 * 3.14159265358979,      # encoder.hpp:35
-    "axis*.encoder.config.direction": 0,                    # encoder.hpp:37 (set by calibration)
-    "axis*.controller.config.vel_integrator_limit": float("inf"),  # controller.hpp:43 (0.5.4+)
-    "axis*.controller.config.vel_ramp_rate": 1.0,           # controller.hpp:48
-    "axis*.controller.config.torque_ramp_rate": 0.01,       # controller.hpp:49
-    "axis*.controller.config.input_filter_bandwidth": 2.0,  # controller.hpp:53
-    "axis*.controller.config.inertia": 0.0,                 # controller.hpp:54
-    "axis*.controller.config.enable_vel_limit": True,       # controller.hpp:57
-    "axis*.controller.config.enable_torque_mode_vel_limit": True,  # controller.hpp:58
-    "axis*.controller.config.enable_overspeed_error": True,  # controller.hpp:60
-    "axis*.trap_traj.config.vel_limit": 2.0,                # trapTraj.hpp:10
-    "axis*.trap_traj.config.accel_limit": 0.5,              # trapTraj.hpp:11
-    "axis*.trap_traj.config.decel_limit": 0.5,              # trapTraj.hpp:12
-    "config.dc_bus_undervoltage_trip_level": 8.0,           # odrive_main.h:78
-    "config.dc_bus_overvoltage_trip_level": 1.07 * 24.0,    # odrive_main.h:79 (HW_VERSION_VOLTAGE)
-    "config.dc_max_positive_current": float("inf"),         # odrive_main.h:84
-    "config.dc_max_negative_current": -0.01,                # odrive_main.h:111 (0.5.2+)
-    "config.max_regen_current": 0.0,                        # odrive_main.h:85
-    "config.enable_uart_a": True,                           # odrive_main.h:93
-    "config.uart_a_baudrate": 115200,                       # odrive_main.h:101
-    "config.enable_can_a": True,                            # odrive_main.h:103
-    "can.config.baud_rate": 250000,                         # interface_can.hpp:24
+# Defaults of unmodeled endpoints: the firmware's configuration defaults, extracted from its
+# sources (leglib/firmware/defaults_fw-v*.json, by leglib/firmware/extract_defaults.py, each
+# with its file:line), then these, else zero.
+EXTRA_DEFAULTS = {
+    "hw_version_variant": 24,   # the 24 V board variant, as the twin's bus (hw_version.py: v3.6-24V)
 }
 
 # functions that only read something: unmodeled, they return zeros instead of raising
@@ -152,6 +121,20 @@ def _table_raw(version: str) -> tuple[bytes, list]:
         raw = resources.files("leglib.firmware").joinpath(FIRMWARE_TABLES[version]).read_bytes()
         _TABLE_CACHE[version] = (raw, json.loads(raw))
     return _TABLE_CACHE[version]
+
+
+_DEFAULTS_CACHE: dict[str, dict] = {}
+
+
+def firmware_defaults(firmware: str = "0.5.6") -> dict:
+    """``{"axis*.motor.config.calibration_current": {"value": 10.0, "source":
+    "Firmware/MotorControl/motor.hpp:20"}, ...}``: the configuration defaults of
+    ``firmware``, from its sources (ODrive v3.6, 24 V)."""
+    version = normalize_firmware(firmware)
+    if version not in _DEFAULTS_CACHE:
+        raw = resources.files("leglib.firmware").joinpath(f"defaults_fw-v{version}.json").read_text()
+        _DEFAULTS_CACHE[version] = json.loads(raw)["defaults"]
+    return _DEFAULTS_CACHE[version]
 
 
 def flatten(table: list, prefix: str = "") -> dict:
@@ -290,9 +273,19 @@ class _Record:
     lock: threading.RLock = field(default_factory=threading.RLock)
 
     def default(self, path: str, codec: str):
-        val = FIRMWARE_DEFAULTS.get(_generic(path), FIRMWARE_DEFAULTS.get(path))
-        if val is not None:
-            return val
+        hit = firmware_defaults(self.version).get(_generic(path))
+        if hit is not None:
+            value = hit["value"]
+            if codec not in ("float", "bool") and isinstance(value, (int, float)):
+                # C's conversion to the member's type: uint8 axis_to_mirror = -1 reads 255
+                fmt = "<" + _FORMATS[codec]
+                bits = 8 * struct.calcsize(fmt)
+                value = int(value) % (1 << bits)
+                if fmt[1].islower() and value >= 1 << (bits - 1):
+                    value -= 1 << bits
+            return value
+        if path in EXTRA_DEFAULTS:
+            return EXTRA_DEFAULTS[path]
         return False if codec == "bool" else 0.0 if codec == "float" else 0
 
     def reboot_held(self):
