@@ -226,12 +226,12 @@ def test_unmodeled_endpoints_hold_the_firmwares_defaults():
     """Defaults come from the firmware's sources (leglib/firmware/defaults_fw-v*.json):
     encoder.hpp:21 ``calib_range = 0.02f``, controller.hpp:48 ``uint8_t axis_to_mirror = -1``
     (reads 255, C's conversion), odrive_main.h:82 ``enable_brake_resistor = false`` and
-    :111 ``dc_max_negative_current = -0.01f`` (fw-v0.5.6; 0.5.1 has neither)."""
+    :111 ``dc_max_negative_current = -0.01f`` (fw-v0.5.6; 0.5.1 has no such switch)."""
     d56, d51 = F.firmware_defaults("0.5.6"), F.firmware_defaults("0.5.1")
     assert d56["config.enable_brake_resistor"] == {"value": False,
                                                    "source": "Firmware/MotorControl/odrive_main.h:82"}
     assert d56["config.dc_max_negative_current"]["value"] == -0.01
-    assert "config.enable_brake_resistor" not in d51 and "config.dc_max_negative_current" not in d51
+    assert "config.enable_brake_resistor" not in d51                 # 0.5.1: always on
     assert d56["axis*.encoder.config.calib_range"]["source"] == "Firmware/MotorControl/encoder.hpp:21"
     odrv = V.find_any(seed=14)
     assert odrv.axis1.encoder.config.calib_range == pytest.approx(0.02, rel=1e-7)
