@@ -601,7 +601,7 @@ def connect_options(sim) -> dict:
 def _set_realtime(sim, realtime: bool) -> None:
     """Switch pacing; entering real time re-bases the wall clock on the virtual one."""
     import time as _time
-    if realtime and not sim.realtime:
+    if realtime and not sim.realtime and hasattr(sim, "_t0_wall"):
         sim._t0_wall = _time.monotonic() - sim.time
     sim.realtime = realtime
 
