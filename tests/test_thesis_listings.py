@@ -439,7 +439,7 @@ def test_listing_74_steps_and_files(thesis_odrive, tmp_path, monkeypatch):
         m = dataio.read_measurement(f)
         assert not m.absolute and m.meta == {}
         assert m.gains in ((20.0, 0.046, 0.002), (50.0, 0.046, 0.002))
-        assert m.t[-1] == pytest.approx(1.5, abs=0.05) and np.all(np.diff(m.t) > 0)
+        assert m.t[-1] == pytest.approx(1.5, abs=0.1) and np.all(np.diff(m.t) > 0)
         assert m.angle1[0] == 0.0 and m.angle2[0] == 0.0
         late = m.t > m.t[-1] - 0.3                # the settled end of the response
         steps[m.gains[0]] = (np.mean(m.angle1[late]), np.mean(m.angle2[late]))
@@ -476,7 +476,7 @@ def test_listing_73_torque_table(thesis_odrive, tmp_path, monkeypatch):
     assert re.match(r"^\d{8}_\d{6}_positions\.csv$", pos_file.name)
     m = dataio.read_measurement(pos_file)
     assert m.gains is None and m.meta == {}
-    assert m.t[-1] == pytest.approx(4.5, abs=0.05)
+    assert m.t[-1] == pytest.approx(4.5, abs=0.1)
     assert m.angle1[0] == 3.0 and m.angle2[0] == -3.0      # the listing's +-3 deg offsets
     assert np.ptp(m.angle1) > 2.0                           # segment 1 swings under the sine
     assert dataio.read_table(tq_file, 3).shape == (2300, 3)
