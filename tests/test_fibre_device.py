@@ -236,3 +236,17 @@ def test_unmodeled_endpoints_hold_the_firmwares_defaults():
     odrv = V.find_any(seed=14)
     assert odrv.axis1.encoder.config.calib_range == pytest.approx(0.02, rel=1e-7)
     assert odrv.axis0.controller.config.axis_to_mirror == 255
+
+
+def test_device_reconnect_after_reboot():
+    """leglib's Device finds its ODrive again after a reset (fw-v0.5.6 main.cpp:180/194):
+    a new client handle on the same model, the old one lost."""
+    from leglib import odrive_io as io
+    d = io.connect("virtual", seed=15)
+    old, sim = d.raw, d.sim
+    _reboot(d.raw)
+    with pytest.raises(odrive.DeviceLostException):
+        d.raw.vbus_voltage
+    d.reconnect()
+    assert d.raw is not old and d.sim is sim and V.device_of(d.raw) is sim
+    assert d.firmware_version == (0, 5, 6) and isinstance(d.raw.vbus_voltage, float)
