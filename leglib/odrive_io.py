@@ -86,22 +86,39 @@ class Device:
     """
 
     def __init__(self, odrv, backend: str, leg: LegParams, config: OdriveConfig, options: dict | None = None):
+        from .virtual_odrive import device_of
         self.raw = odrv
+        #: the firmware model behind a virtual ODrive (virtual clock, twin, step_batch,
+        #: fault injection); None on USB
+        self.sim = device_of(odrv)
         self.backend = backend
+        if (backend == "virtual") != (self.sim is not None):
+            raise ValueError(f"backend={backend!r} does not match the device object "
+                             f"({'a virtual' if self.sim is not None else 'not a virtual'} ODrive)")
         self.leg = leg
         self.config = config
         self.axes = AxisMap.from_leg(leg)
         self.options = dict(options or {})
+        self._read_firmware_version()
+        self._t0 = time.monotonic()
+
+    def _read_firmware_version(self):
+        odrv = self.raw
         major = int(odrv.fw_version_major)
         minor = int(odrv.fw_version_minor)
         self.firmware_version = (major, minor, int(odrv.fw_version_revision))
         if (major, minor) == (0, 5):
             self.firmware = "0.5"
-        elif (major, minor) >= (0, 6):
-            self.firmware = "0.6"
         else:
-            raise ExperimentError(f"firmware {major}.{minor} is not supported (0.5.x or 0.6.x)")
-        self._t0 = time.monotonic()
+            raise ExperimentError(f"firmware {major}.{minor}.{self.firmware_version[2]} is not supported: "
+                                  f"the ODrive v3.6 runs 0.5.x (0.6.x is for ODrive Pro, S1 and Micro)")
+
+    def reconnect(self, timeout: float = 10.0) -> None:
+        """Find the same ODrive again after it rebooted (``save_configuration()`` on
+        firmware 0.5.2+, ``reboot()``): the old object raises on any access, as on USB.
+        Replaces :attr:`raw`; the virtual device is found by its seed, the USB one by its
+        serial number (see :func:`_reconnect`)."""
+        self.rebind(_reconnect(self, timeout))
 
     # -- the tree ----------------------------------------------------------------------
     def __getattr__(self, name):
@@ -182,15 +199,16 @@ class Device:
 
     # -- time --------------------------------------------------------------------------
     def time(self) -> float:
-        """Seconds since connect: the virtual clock on the twin, the wall clock on USB."""
-        if self.backend == "virtual":
-            return self.raw.time
+        """Seconds: the virtual clock on the twin (since its power-up), the wall clock
+        since connect on USB."""
+        if self.sim is not None:
+            return self.sim.time
         return time.monotonic() - self._t0
 
     def sleep(self, seconds: float) -> None:
         """Wait; on the twin the simulated leg moves on meanwhile."""
-        if self.backend == "virtual":
-            self.raw.sleep(seconds)
+        if self.sim is not None:
+            self.sim.sleep(seconds)
         else:
             time.sleep(seconds)
 
@@ -236,8 +254,8 @@ class Device:
     def describe(self) -> dict:
         """Backend facts for sidecars."""
         d = {"backend": self.backend, "firmware": ".".join(map(str, self.firmware_version))}
-        if self.backend == "virtual":
-            tw = self.raw.twin
+        if self.sim is not None:
+            tw = self.sim.twin
             d.update({"twin_seed": tw.seed, "twin_plant": tw.plant.source_file,
                       "twin_plant_values": {k: v for k, v in vars(tw.plant).items() if k != "source_file"},
                       "twin_noise": tw.noise})
@@ -305,24 +323,37 @@ def connect(backend: str = "virtual", *, leg: str | LegParams = "thesis",
 
     Parameters
     ----------
-    backend : "virtual" (the twin) or "usb" (a real ODrive via ``odrive.find_any``)
+    backend : "virtual" (the twin, through :func:`leglib.virtual_odrive.find_any`) or
+        "usb" (a real ODrive via ``odrive.find_any``)
     leg : the leg it drives (nominal parameters: units, kinematics)
-    config : the ODrive configuration to apply and check against (Listing 7.1)
+    config : the ODrive configuration to apply and check against (Listing 7.1); on the twin
+        also the virtual device's initial configuration
     timeout : USB search timeout [s]
+    serial_number : the ODrive to find (USB; on the twin the virtual device's serial)
     **virtual_options : for the twin: ``seed``, ``plant`` (name, path or PlantParams),
-        ``realtime``, ``firmware`` ("0.5"/"0.6"), ``disconnect_after``, ``noise``
+        ``realtime``, ``firmware`` ("0.5.6", "0.5.1"), ``disconnect_after``, ``noise``
+
+    Returns
+    -------
+    Device
+        ``dev.raw`` is the ``odrive`` client's object on both backends; ``dev.sim`` the
+        firmware model on the twin (None on USB). A virtual device lives for the process
+        under its seed: connecting with the same seed again gives the same device.
     """
     leg = load_leg(leg) if isinstance(leg, (str, Path)) else leg
     config = load_odrive_config(config) if isinstance(config, (str, Path)) else config
     if backend == "virtual":
-        from .virtual_odrive import VirtualODrive
+        from .virtual_odrive import find_any
         allowed = {"seed", "plant", "realtime", "firmware", "disconnect_after", "noise"}
         unknown = set(virtual_options) - allowed
         if unknown:
             raise TypeError(f"connect(backend='virtual'): unknown option(s) {sorted(unknown)}; "
                             f"allowed: {sorted(allowed)}")
-        odrv = VirtualODrive(config=config, **virtual_options)
-        return Device(odrv, "virtual", leg, config, virtual_options)
+        opts = {"config": config, **virtual_options}
+        if serial_number is not None:
+            opts["serial_number"] = serial_number
+        odrv = find_any(**opts)
+        return Device(odrv, "virtual", leg, config, opts)
     if backend == "usb":
         if virtual_options:
             raise TypeError(f"connect(backend='usb'): options {sorted(virtual_options)} are for the "
@@ -332,13 +363,23 @@ def connect(backend: str = "virtual", *, leg: str | LegParams = "thesis",
 
 
 def as_device(odrv, leg: str | LegParams = "thesis", config: str | OdriveConfig = "thesis") -> Device:
-    """Wrap a raw object tree (e.g. from odrivetool) as a Device; a Device passes through."""
+    """Wrap an ODrive object (from ``odrive.find_any``, odrivetool, or
+    :func:`leglib.virtual_odrive.find_any`) as a Device; a Device passes through. A client
+    object of a virtual ODrive is recognised as virtual."""
     if isinstance(odrv, Device):
         return odrv
-    from .virtual_odrive import VirtualODrive
+    from .virtual_odrive import VirtualODrive, device_of
+    if isinstance(odrv, VirtualODrive):
+        raise TypeError("as_device: pass the client object of leglib.virtual_odrive.find_any(), not "
+                        "the VirtualODrive model (or use connect('virtual', ...))")
     leg = load_leg(leg) if isinstance(leg, (str, Path)) else leg
     config = load_odrive_config(config) if isinstance(config, (str, Path)) else config
-    return Device(odrv, "virtual" if isinstance(odrv, VirtualODrive) else "usb", leg, config)
+    sim = device_of(odrv)
+    options = {}
+    if sim is not None:
+        from .fibre_device import connect_options
+        options = connect_options(sim)
+    return Device(odrv, "virtual" if sim is not None else "usb", leg, config, options)
 
 
 # ---------------------------------------------------------------------------------------
@@ -415,11 +456,14 @@ def _any_error(dev: Device) -> bool:
 
 
 def _reconnect(dev: Device, timeout: float = 10.0):
-    """A new connection to the same ODrive after it rebooted, found by serial number.
-    Returns the new object tree (give it to :meth:`Device.rebind`)."""
+    """A new connection to the same ODrive after it rebooted, found by serial number (the
+    virtual one through :func:`leglib.virtual_odrive.find_any` with its seed, as a script
+    would). Returns the new object tree (give it to :meth:`Device.rebind`)."""
     serial = dev.__dict__.get("serial_number_at_connect")
     if dev.sim is not None:
-        return dev.sim.reconnect(serial)
+        from .virtual_odrive import find_any
+        opts = {k: v for k, v in dev.options.items() if k != "disconnect_after"}
+        return find_any(**opts)
     time.sleep(1.0)  # the board resets; searching at once may find the old USB device still
     return _find_usb(timeout, None if serial is None else f"{serial:012X}")
 

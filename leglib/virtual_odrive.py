@@ -986,3 +986,56 @@ class VirtualODrive:
             self.st.C[0, a, [T.C_POS_GAIN, T.C_VEL_GAIN, T.C_VEL_INT_GAIN]] = last
             self._feed(a)
         return out
+
+
+# ---------------------------------------------------------------------------------------
+# the virtual ODrive through the odrive client: find_any, device_of (leglib.fibre_device)
+# ---------------------------------------------------------------------------------------
+
+def find_any(*, seed: int = 0, plant="default", firmware: str = "0.5.6", realtime: bool = False,
+             timeout: float | None = None, serial_number=None, **options):
+    """A drop-in for ``odrive.find_any()``: the virtual ODrive v3.6 of ``seed`` as the
+    installed ``odrive`` client's object tree.
+
+    The client builds its tree from the firmware's own endpoint table and talks to the
+    firmware model by endpoint id (:mod:`leglib.fibre_device`), so the object is the same
+    kind as a USB device's: ``odrv.axis0.controller.config.pos_gain = 50``,
+    ``odrv.save_configuration()``, ``odrive.utils.dump_errors(odrv)``.
+
+    Parameters
+    ----------
+    seed : int
+        Identifies the device: its serial number is derived from it, and the same seed
+        gives the same device (and the same noise) for the life of the process.
+    plant : str, path or PlantParams
+        The simulated leg (``data/params/plant_<name>.toml``).
+    firmware : str
+        "0.5.6" (default; "0.5" is an alias) or "0.5.1": the endpoint table served. An
+        ODrive v3.6 has no 0.6 firmware: "0.6" raises ValueError.
+    realtime : bool
+        Pace the virtual clock to the wall clock, so scripts that ``time.sleep`` and
+        ``time.time()`` (the thesis's listings) see the leg move in real time.
+    timeout : float or None
+        Accepted as ``odrive.find_any`` does; the virtual device is always present.
+    serial_number : str or int, optional
+        Find the device by serial number (hex string as the client reports it) instead.
+    **options
+        ``config`` (initial ODrive configuration), ``noise``, ``disconnect_after``.
+
+    Returns
+    -------
+    odrive.sync_tree.SyncObject
+        The client's object. After the device reboots (``save_configuration()`` on
+        0.5.2+, ``reboot()``) it raises ``odrive.DeviceLostException``; call ``find_any``
+        with the same seed for a new handle to the same device and its saved configuration.
+    """
+    from . import fibre_device
+    return fibre_device.find_any(seed=seed, plant=plant, firmware=firmware, realtime=realtime,
+                                 timeout=timeout, serial_number=serial_number, **options)
+
+
+def device_of(odrv):
+    """The :class:`VirtualODrive` behind a client object from :func:`find_any` (or any node
+    of its tree, or a :class:`leglib.odrive_io.Device`); None for a USB ODrive."""
+    from . import fibre_device
+    return fibre_device.device_of(odrv)

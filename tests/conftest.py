@@ -25,3 +25,12 @@ def processed(tmp_path_factory):
     execute(nb02, out, {"smoke": True, "raw_dir": str(out / "raw"), "processed_dir": str(out / "processed")},
             html=False)
     return out, json.loads((out / "metrics" / f"{nb02.stem}.json").read_text())
+
+
+@pytest.fixture(autouse=True)
+def _fresh_virtual_devices():
+    """Each test starts without virtual ODrives: they live for the process under their
+    seed (leglib.virtual_odrive.find_any), so tests would otherwise share devices."""
+    from leglib import fibre_device
+    fibre_device.forget()
+    yield

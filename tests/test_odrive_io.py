@@ -251,6 +251,21 @@ def test_firmware_051_differences():
     d.axis(0).error = 0x800
     io.clear_errors(d)
     assert int(d.get(0, "error")) == 0
+def test_virtual_device_is_the_odrive_client_object():
+    """connect("virtual") wraps the odrive client's tree built over the firmware table; the
+    model (virtual clock, twin) is dev.sim. A v3.6 has no 0.6 firmware (odrive 0.6.11
+    utils.py:87-89 treats < 0.6.0 as legacy 0.5.x)."""
+    from odrive.sync_tree import SyncObject
+    d = io.connect("virtual", seed=5)
+    assert isinstance(d.raw, SyncObject) and isinstance(d.sim, V.VirtualODrive)
+    assert d.firmware == "0.5" and d.firmware_version == (0, 5, 6)
+    assert io.as_device(d.raw).sim is d.sim and io.as_device(d.raw).backend == "virtual"
+    assert io.connect("virtual", seed=5).sim is d.sim            # same seed, same device
+    assert io.connect("virtual", seed=7, firmware="0.5.1").firmware_version == (0, 5, 1)
+    with pytest.raises(ValueError, match="firmware='0.5.1'"):
+        io.connect("virtual", seed=5, firmware="0.5.1")          # seed 5 runs 0.5.6
+    with pytest.raises(ValueError, match="no 0.6 firmware"):
+        io.connect("virtual", seed=6, firmware="0.6")
 
 
 def test_connect_errors():

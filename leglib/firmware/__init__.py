@@ -1,0 +1,1 @@
+"""The ODrive firmware's endpoint tables (package data); see README.md here."""
