@@ -448,10 +448,20 @@ class VirtualUSBDevice:
             args = struct.unpack(in_format, struct.pack(in_format, *args))  # the wire's conversions
             n_out = len(struct.unpack(out_format, bytes(struct.calcsize(out_format))))
             if ep.source == "model":
-                result = self._model(lambda: getattr(ep.node, ep.leaf)(*args))
-                if ep.path == "save_configuration" and result is not False:
-                    self._record.saved_held = {k: v for k, v in self._record.held.items() if ".config." in k
-                                               or k.startswith("config.")}
+                boot = _boot_count(self._sim)
+                saving = {k: v for k, v in self._record.held.items()
+                          if ".config." in k or k.startswith("config.")}
+                result = False
+                try:
+                    result = self._model(lambda: getattr(ep.node, ep.leaf)(*args))
+                    wrote = result is not False    # True, or None on 0.5.1 (no return value)
+                except Exception:
+                    wrote = False
+                    raise
+                finally:
+                    # flash is written also when the board resets inside the call (0.5.2+)
+                    if ep.path == "save_configuration" and (wrote or _boot_count(self._sim) != boot):
+                        self._record.saved_held = saving
             elif _generic(ep.path) in UNMODELED_QUERIES:
                 self._transaction()
                 result = tuple(0 for _ in range(n_out))
@@ -579,6 +589,10 @@ def find_any(*, seed: int = 0, plant="default", firmware: str = "0.5.6", realtim
         if record.handle is not None and record.handle_boot == _boot_count(record.sim) \
                 and record.handle_link == record.link and not getattr(record.sim, "lost", False):
             return record.handle
+        if record.handle is not None and record.handle_boot != _boot_count(record.sim):
+            # a rebooting board enumerates again only after its boot time (as find_any on
+            # USB waits for it): the model lets that virtual time pass
+            record.sim.reconnect()
         return _connect_client(record)
 
 

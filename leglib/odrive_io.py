@@ -365,13 +365,11 @@ def connect(backend: str = "virtual", *, leg: str | LegParams = "thesis",
 def as_device(odrv, leg: str | LegParams = "thesis", config: str | OdriveConfig = "thesis") -> Device:
     """Wrap an ODrive object (from ``odrive.find_any``, odrivetool, or
     :func:`leglib.virtual_odrive.find_any`) as a Device; a Device passes through. A client
-    object of a virtual ODrive is recognised as virtual."""
+    object of a virtual ODrive is recognised as virtual; so is the firmware model itself
+    (its own tree carries the firmware's endpoint names, without the client in between)."""
     if isinstance(odrv, Device):
         return odrv
-    from .virtual_odrive import VirtualODrive, device_of
-    if isinstance(odrv, VirtualODrive):
-        raise TypeError("as_device: pass the client object of leglib.virtual_odrive.find_any(), not "
-                        "the VirtualODrive model (or use connect('virtual', ...))")
+    from .virtual_odrive import device_of
     leg = load_leg(leg) if isinstance(leg, (str, Path)) else leg
     config = load_odrive_config(config) if isinstance(config, (str, Path)) else config
     sim = device_of(odrv)

@@ -93,16 +93,17 @@ def test_reads_and_writes_reach_the_model_as_float32():
 
 def test_unmodeled_write_warns_once_and_is_held():
     """An endpoint the model does not implement holds its firmware default
-    (motor.hpp: calibration_current = 10 A) and what is written; a change warns once,
-    naming the endpoint."""
+    (odrive_main.h:83: dc_bus_undervoltage_trip_level = 8 V) and what is written; a change
+    warns once, naming the endpoint."""
     odrv = V.find_any(seed=6)
-    assert odrv.axis0.motor.config.calibration_current == 10.0
-    with pytest.warns(F.UnmodeledEndpointWarning, match="axis0.motor.config.calibration_current"):
-        odrv.axis0.motor.config.calibration_current = 5.0
+    assert "config.dc_bus_undervoltage_trip_level" in F.endpoint_coverage(firmware="0.5.6")["unmodeled"]
+    assert odrv.config.dc_bus_undervoltage_trip_level == 8.0
+    with pytest.warns(F.UnmodeledEndpointWarning, match="config.dc_bus_undervoltage_trip_level"):
+        odrv.config.dc_bus_undervoltage_trip_level = 9.0
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        odrv.axis0.motor.config.calibration_current = 6.0
-    assert odrv.axis0.motor.config.calibration_current == 6.0
+        odrv.config.dc_bus_undervoltage_trip_level = 10.0
+    assert odrv.config.dc_bus_undervoltage_trip_level == 10.0
 
 
 def test_function_calls_follow_the_table():
@@ -133,6 +134,7 @@ def test_dump_errors_shows_the_models_flags(capsys):
     the model's error flags; odrv.clear_errors() clears them (fw-v0.5.6 main.cpp:236)."""
     odrv = V.find_any(seed=9)
     odrv.axis0.requested_state = 8               # not calibrated: the axis refuses
+    V.device_of(odrv).sleep(0.002)               # the axis thread takes requests up (axis.cpp:290)
     assert odrv.axis0.error & 0x1
     odrive.utils.dump_errors(odrv)
     out = capsys.readouterr().out
@@ -161,7 +163,7 @@ def test_reboot_loses_the_handle_and_find_any_reconnects():
     odrv = V.find_any(seed=10)
     sim = V.device_of(odrv)
     with pytest.warns(F.UnmodeledEndpointWarning):
-        odrv.axis0.motor.config.calibration_current = 7.0
+        odrv.config.dc_bus_undervoltage_trip_level = 7.0
     try:
         odrv.save_configuration()
     except odrive.DeviceLostException:           # 0.5.6 resets inside the call (main.cpp:180)
@@ -170,12 +172,12 @@ def test_reboot_loses_the_handle_and_find_any_reconnects():
         odrv.axis1.motor.config.resistance_calib_max_voltage = 4.0   # not saved
     _reboot(odrv)
     with pytest.raises(odrive.DeviceLostException):
-        odrv.axis0.motor.config.calibration_current
+        odrv.config.dc_bus_undervoltage_trip_level
     with pytest.raises(V.DeviceLostError):
         odrv.vbus_voltage
     new = V.find_any(seed=10)
     assert new is not odrv and V.device_of(new) is sim
-    assert new.axis0.motor.config.calibration_current == 7.0
+    assert new.config.dc_bus_undervoltage_trip_level == 7.0
     assert new.axis1.motor.config.resistance_calib_max_voltage == 2.0
 
 
