@@ -28,7 +28,7 @@ Pipeline (Listings 7.6-7.8, done properly):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -80,6 +80,7 @@ class PointResult:
     wn: float = math.nan
     r2: float = math.nan
     reason: str = ""
+    fit: object = field(default=None, repr=False, compare=False)  # the SecondOrderFit, when one was made
 
     @property
     def fn(self) -> float:
@@ -144,8 +145,8 @@ def identify_response(resp, method: str = "fit") -> PointResult:
         return PointResult(g, STATUS_FAILED, reason=str(exc))
     problem = step_shape_problem(resp.t, resp.y, f)
     if problem:
-        return PointResult(g, STATUS_FAILED, r2=f.r2, reason=problem)
-    return PointResult(g, STATUS_OK, f.zeta, f.wn, f.r2)
+        return PointResult(g, STATUS_FAILED, r2=f.r2, reason=problem, fit=f)
+    return PointResult(g, STATUS_OK, f.zeta, f.wn, f.r2, fit=f)
 
 
 def _identify_chunk(args):
