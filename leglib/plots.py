@@ -200,7 +200,8 @@ def plot_map_slices(gm, field: str = "zeta", axes=None):
                        extent=[gm.axes[1][0], gm.axes[1][-1], gm.axes[2][0], gm.axes[2][-1]])
         ax.set_title(f"{field}, pos_gain = {gm.axes[0][k]:g} (turn/s)/turn", fontsize=9)
         ax.set_xlabel("vel_gain [N m/(turn/s)]")
-        ax.set_ylabel("vel_integrator_gain [N m/turn]")
+        if k == 0:  # shared by the row; repeated labels would overlap the neighbour
+            ax.set_ylabel("vel_integrator_gain [N m/turn]")
         images.append(im)
     axes[-1].figure.colorbar(images[-1], ax=list(axes),
                              label="zeta [-]" if field == "zeta" else "fn [Hz]")
