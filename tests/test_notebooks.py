@@ -57,10 +57,21 @@ def assert_report_has_figures(out_dir, stem, html=True):
     nb = nbformat.read(str(out_dir / f"{stem}.ipynb"), as_version=4)
     n = count_figures(nb)
     assert n >= 1, f"{stem}: the executed notebook holds no figure"
-    widget_cells = [c for c in nb.cells if c.cell_type == "code" and any(
-        "application/vnd.jupyter.widget-view+json" in o.get("data", {}) for o in c.outputs)]
-    for c in widget_cells:
-        assert any("image/png" in o.get("data", {}) for o in c.outputs), f"{stem}: a widget cell has no picture"
+    # a panel (a widget holding an output area, not e.g. a progress bar) leaves a picture
+    state = nb.metadata.get("widgets", {}).get("application/vnd.jupyter.widget-state+json", {}).get("state", {})
+
+    def holds_output_area(model_id, seen=()):
+        m = state.get(model_id, {})
+        if m.get("model_name") == "OutputModel":
+            return True
+        kids = [c[len("IPY_MODEL_"):] for c in m.get("state", {}).get("children", []) if isinstance(c, str)]
+        return any(holds_output_area(k, seen + (model_id,)) for k in kids if k not in seen)
+
+    for c in nb.cells:
+        views = [o["data"]["application/vnd.jupyter.widget-view+json"]["model_id"] for o in c.get("outputs", [])
+                 if "application/vnd.jupyter.widget-view+json" in o.get("data", {})]
+        if any(holds_output_area(v) for v in views):
+            assert any("image/png" in o.get("data", {}) for o in c.outputs), f"{stem}: a panel left no picture"
     if html:
         page = (out_dir / f"{stem}.html").read_text()
         assert page.count("data:image/png;base64") >= n, f"{stem}: the HTML lacks figures"
