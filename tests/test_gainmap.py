@@ -196,3 +196,9 @@ def test_zero_gains_and_non_second_order_steps_are_failed(thesis_map):
     resp = io.StepResponse(t=t, q1=t, q2=t, y=y, gains=(50.0, 0.05, 0.01), step=0.4)
     p = GM.identify_response(resp)
     assert p.status == "failed" and math.isnan(p.zeta) and "not a second-order step" in p.reason
+
+
+def test_counts_are_plain_python(synthetic):
+    c = synthetic.counts()
+    assert all(type(k) is str and type(v) is int for k, v in c.items())
+    assert "np.str_" not in str(c)
