@@ -20,10 +20,6 @@ WIDGET_VIEW = "application/vnd.jupyter.widget-view+json"
 WIDGET_STATE = "application/vnd.jupyter.widget-state+json"
 
 
-class ReportError(RuntimeError):
-    """An executed notebook is not a complete report (e.g. it holds no figure)."""
-
-
 def notebook_paths() -> list[Path]:
     """The numbered notebooks (``notebooks/NN_*.ipynb``) in order."""
     return sorted(p for p in NOTEBOOK_DIR.glob("[0-9][0-9]_*.ipynb"))
