@@ -6,10 +6,15 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
-export MPLBACKEND := Agg
 export PYDEVD_DISABLE_FILE_VALIDATION := 1
+# Notebook kernels always draw with matplotlib's inline backend (leglib.notebooks.execute sets
+# it for them), so reports carry their figures. Only the test and benchmark processes
+# themselves are headless (Agg); no MPLBACKEND is exported to kernels from here.
+HEADLESS := MPLBACKEND=Agg
+# JupyterLab refuses to start as root without --allow-root
+LAB_ROOT := $(shell [ "$$(id -u)" = 0 ] && echo --allow-root)
 
-.PHONY: run test venv sysdeps bench clean
+.PHONY: run test venv sysdeps bench clean lab
 
 venv: $(STAMP)
 
@@ -41,10 +46,13 @@ run: $(STAMP)
 
 test: $(STAMP)
 	@$(MAKE) --no-print-directory sysdeps
-	$(BIN)/python -m pytest -q
+	$(HEADLESS) $(BIN)/python -m pytest -q
 
 bench: $(STAMP)
-	$(BIN)/python -m benchmarks
+	$(HEADLESS) $(BIN)/python -m benchmarks
+
+lab: $(STAMP)
+	$(BIN)/jupyter lab notebooks/ $(LAB_ROOT)
 
 clean:
 	rm -rf $(VENV) reports/*.ipynb reports/*.html reports/figures reports/metrics

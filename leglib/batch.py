@@ -12,7 +12,9 @@ A spec (TOML)::
 Each run writes its executed notebooks, figures and metrics JSON under
 ``reports/batch/<name>/<run id>/`` and a ``status.json``; a run whose status says
 "done" is skipped when the batch is re-run. A failing run records the notebook and cell
-that failed and does not stop the others. ``index.html`` and ``summary.png`` list all runs.
+that failed and does not stop the others. ``index.html`` lists all runs, each linked to its
+reports, with the chosen metrics of :data:`SUMMARY_METRICS` (validation errors, identified
+parameters) and units; ``summary.png`` plots those against the swept parameter.
 """
 
 from __future__ import annotations
@@ -188,7 +190,7 @@ def run_one(notebooks: list[str], params: dict, out_dir: str) -> dict:
         known = set(pm.inspect_notebook(str(NOTEBOOK_DIR / f"{nb}.ipynb")))
         nb_params = {k: v for k, v in nb_params.items() if k in known}
         try:
-            execute(NOTEBOOK_DIR / f"{nb}.ipynb", out, nb_params, html=False)
+            execute(NOTEBOOK_DIR / f"{nb}.ipynb", out, nb_params, html=True)
         except pm.PapermillExecutionError as exc:
             status.update(status="failed", notebook=nb, cell=int(exc.cell_index),
                           error=f"{exc.ename}: {exc.evalue}")
@@ -253,58 +255,173 @@ def run_batch(spec: str | Path | dict, out_root: str | Path = "reports/batch", s
                 results[futures[fut]] = fut.result()
                 bar.update(1)
     bar.close()
-    write_index(root, runs, results)
+    write_index(root, runs, results, spec["notebooks"])
     return results
 
 
-def _flatten(d: dict, prefix: str = "") -> dict:
+# The metrics a batch summary shows, per notebook: (notebook, path in its metrics JSON,
+# label, unit, factor from the JSON's value to the unit). Validation errors and identified
+# parameters, the answers a parameter study asks for; timings and constants stay in
+# status.json.
+SUMMARY_METRICS = [
+    ("05_validation", ("summary", "map", "median"), "map method: median error", "%", 100.0),
+    ("05_validation", ("summary", "map", "worst"), "map method: worst error", "%", 100.0),
+    ("05_validation", ("summary", "model", "median"), "model method: median error", "%", 100.0),
+    ("05_validation", ("summary", "model", "worst"), "model method: worst error", "%", 100.0),
+    ("05_validation", ("thesis_target", "error_zeta"), "thesis target: zeta error", "%", 100.0),
+    ("05_validation", ("thesis_target", "error_fn"), "thesis target: fn error", "%", 100.0),
+    ("04_pid_sweeps", ("counts", "unstable"), "unstable grid points", "count", 1.0),
+    ("04_pid_sweeps", ("counts", "failed"), "failed grid points", "count", 1.0),
+    ("04_pid_sweeps", ("zeta_range", 1), "largest achievable zeta", "-", 1.0),
+    ("04_pid_sweeps", ("fn_range", 1), "highest achievable fn", "Hz", 1.0),
+    ("04_pid_sweeps", ("thesis_target_nearest", "fn"), "fn nearest the thesis target", "Hz", 1.0),
+    ("03_pole_placement", ("runs", "identified: live closed loop", "final_error_pct"),
+     "live state feedback: final error", "%", 1.0),
+    ("03_pole_placement", ("runs", "identified: live closed loop", "overshoot_pct"),
+     "live state feedback: overshoot", "%", 1.0),
+    ("02_friction_fitting", ("single_joint", "coulomb"), "identified Coulomb (single joint)", "N m", 1.0),
+    ("02_friction_fitting", ("single_joint", "viscous"), "identified viscous (single joint)", "N m s/rad", 1.0),
+    ("02_friction_fitting", ("single_joint", "inertia"), "identified inertia (single joint)", "kg m^2", 1.0),
+    ("02_friction_fitting", ("step_fit", "zeta"), "identified zeta of the Fig. 6.9 step", "-", 1.0),
+    ("01_derivation", ("eq511_max_rel_error",), "eq. 5.11 largest relative error", "%", 100.0),
+]
+
+
+def _lookup(d, path):
+    for k in path:
+        if isinstance(d, dict) and k in d:
+            d = d[k]
+        elif isinstance(d, list) and isinstance(k, int) and -len(d) <= k < len(d):
+            d = d[k]
+        else:
+            return None
+    return float(d) if isinstance(d, (int, float)) and not isinstance(d, bool) else None
+
+
+def summary_values(status: dict) -> dict:
+    """{(notebook, label, unit): value in the unit} of the :data:`SUMMARY_METRICS` a run's
+    status holds (missing and non-finite values left out)."""
+    import math
     out = {}
-    for k, v in d.items():
-        key = f"{prefix}{k}"
-        if isinstance(v, dict):
-            out.update(_flatten(v, key + "."))
-        elif isinstance(v, (int, float)) and not isinstance(v, bool):
-            out[key] = v
+    metrics = status.get("metrics", {})
+    for nb, path, label, unit, factor in SUMMARY_METRICS:
+        v = _lookup(metrics.get(nb, {}), path)
+        if v is not None and math.isfinite(v):
+            out[(nb, label, unit)] = v * factor
     return out
 
 
-def write_index(root: Path, runs: list[dict], results: dict) -> Path:
-    """``index.html`` (a table of every run: parameters, status, failing cell, metrics) and
-    ``summary.png`` (each numeric metric against the first grid parameter)."""
+def _parameter_units(notebooks) -> dict:
+    """{parameter: its unit} from the notebooks' parameter comments ("kg, point mass ..."):
+    the comment's first word when it is followed by a comma and looks like a unit."""
+    import papermill as pm
+
+    from .notebooks import NOTEBOOK_DIR
+    units = {}
+    for nb in notebooks:
+        path = NOTEBOOK_DIR / f"{nb}.ipynb"
+        if not path.exists():
+            continue
+        for name, info in pm.inspect_notebook(str(path)).items():
+            head = (info.get("help") or "").split(",")[0].strip()
+            if head and "," in (info.get("help") or "") and len(head) <= 12 and " " not in head.strip("()"):
+                units.setdefault(name, head)
+    return units
+
+
+def write_index(root: Path, runs: list[dict], results: dict, notebooks: list[str] | None = None) -> Path:
+    """Write ``index.html`` and ``summary.png`` for a batch.
+
+    Parameters
+    ----------
+    root : the batch directory (runs in ``root / run id``)
+    runs : from :func:`runs_of`
+    results : {run id: status} (as ``status.json``)
+    notebooks : the spec's notebooks (for the links to each run's reports and the swept
+        parameters' units); default: those with a report in the run directories
+
+    ``index.html``: one row per run, its swept parameters (with units), status, failing
+    cell, the chosen metrics (:data:`SUMMARY_METRICS`: validation errors, identified
+    parameters) with units, and links to the run's reports and ``status.json`` (every
+    metric). ``summary.png``: each chosen metric against the first swept parameter (one
+    line per combination of the others), axes with units.
+    """
     import html
 
     import matplotlib
-    import matplotlib.pyplot as plt
     matplotlib.use("Agg")
-    rows, metric_names = [], set()
+    import matplotlib.pyplot as plt
+
+    root = Path(root)
+    keys = list(runs[0]["grid"]) if runs else []
+    if notebooks is None:
+        notebooks = sorted({p.stem for r in runs for p in (root / r["id"]).glob("*.ipynb")})
+    units = _parameter_units(notebooks) if keys else {}
+
+    def with_unit(name, unit):
+        return f"{name} [{unit}]" if unit and unit != "-" else name
+
+    rows, chosen = [], []
     for r in runs:
         st = results.get(r["id"], {"status": "missing"})
-        flat = _flatten(st.get("metrics", {}))
-        metric_names.update(flat)
-        rows.append((r, st, flat))
-    metrics = sorted(metric_names)[:12]
-    head = ["run", *runs[0]["grid"].keys(), "status", "failure", *metrics] if runs else []
-    lines = ["<html><head><meta charset='utf-8'><title>batch</title></head><body>",
-             f"<h1>batch {html.escape(root.name)}</h1><img src='summary.png'><table border='1'><tr>",
-             "".join(f"<th>{html.escape(h)}</th>" for h in head), "</tr>"]
-    for r, st, flat in rows:
+        vals = summary_values(st)
+        for k in vals:
+            if k not in chosen:
+                chosen.append(k)
+        rows.append((r, st, vals))
+    order = {(nb, label, unit): i for i, (nb, _, label, unit, _) in enumerate(SUMMARY_METRICS)}
+    chosen.sort(key=lambda k: order[k])
+    head = ["run", *(with_unit(k, units.get(k)) for k in keys), "status", "failure",
+            *(f"{nb[:2]}: {with_unit(label, unit)}" for nb, label, unit in chosen), "reports"]
+    lines = ["<html><head><meta charset='utf-8'><title>batch</title>",
+             "<style>td,th{padding:2px 6px;font-family:sans-serif;font-size:13px}</style></head><body>",
+             f"<h1>batch {html.escape(root.name)}</h1>",
+             "<p>Chosen metrics of every run against the swept parameters; each run's reports and "
+             "its <code>status.json</code> (every metric) are linked.</p>",
+             "<img src='summary.png' alt='chosen metrics against the swept parameters'>",
+             "<table border='1'><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"]
+    for r, st, vals in rows:
         fail = "" if st.get("status") == "done" else f"{st.get('notebook', '')} cell {st.get('cell')}: {st.get('error', '')}"
-        cells = [r["id"], *map(str, r["grid"].values()), st.get("status", ""), fail,
-                 *(f"{flat[m]:.4g}" if m in flat else "" for m in metrics)]
-        lines.append("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells) + "</tr>")
+        cells = [html.escape(r["id"]), *(html.escape(str(v)) for v in r["grid"].values()),
+                 html.escape(str(st.get("status", ""))), html.escape(fail),
+                 *(f"{vals[k]:.4g}" if k in vals else "" for k in chosen)]
+        run_dir = root / r["id"]
+        links = []
+        for nb in notebooks:
+            for ext in (".html", ".ipynb"):
+                if (run_dir / f"{nb}{ext}").exists():
+                    links.append(f"<a href='{html.escape(r['id'])}/{nb}{ext}'>{html.escape(nb[:2])}</a>")
+                    break
+        if (run_dir / "status.json").exists():
+            links.append(f"<a href='{html.escape(r['id'])}/status.json'>status.json</a>")
+        cells.append(" ".join(links))
+        lines.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
     lines.append("</table></body></html>")
     (root / "index.html").write_text("\n".join(lines))
-    keys = list(runs[0]["grid"]) if runs else []
-    if keys and metrics:
-        n = len(metrics)
-        fig, axes = plt.subplots(1, n, figsize=(3.2 * n, 3), squeeze=False)
-        for ax, m in zip(axes[0], metrics):
-            pts = [(r["grid"][keys[0]], flat[m]) for r, st, flat in rows if m in flat]
-            if pts:
-                x, y = zip(*pts)
-                ax.plot(x, y, "o")
-            ax.set_xlabel(keys[0])
-            ax.set_title(m, fontsize=7)
+    if keys and chosen:
+        n = len(chosen)
+        ncol = min(n, 4)
+        nrow = (n + ncol - 1) // ncol
+        fig, axes = plt.subplots(nrow, ncol, figsize=(4.0 * ncol, 3.2 * nrow), squeeze=False)
+        for ax, k in zip(axes.ravel(), chosen):
+            nb, label, unit = k
+            series = {}
+            for r, st, vals in rows:
+                if k in vals:
+                    rest = tuple((p, r["grid"][p]) for p in keys[1:])
+                    series.setdefault(rest, []).append((r["grid"][keys[0]], vals[k]))
+            for rest, pts in series.items():
+                x, y = zip(*sorted(pts))
+                ax.plot(x, y, "o-", label=", ".join(f"{p}={v}" for p, v in rest) or None)
+            if any(rest for rest in series):
+                ax.legend(fontsize=7)
+            ax.set_xlabel(with_unit(keys[0], units.get(keys[0])))
+            ax.set_ylabel(f"{label.split(': ')[-1]} [{unit}]", fontsize=8)
+            ax.set_title(f"{nb[:2]}: {label}", fontsize=9)
+            ax.grid(alpha=0.3)
+        for ax in axes.ravel()[n:]:
+            ax.set_visible(False)
+        fig.suptitle(f"batch {root.name}: chosen metrics against {keys[0]}")
         fig.tight_layout()
         fig.savefig(root / "summary.png", dpi=90)
         plt.close(fig)

@@ -3,8 +3,11 @@
 Pipeline (Listings 7.6-7.8, done properly):
 
 1. every step response of a sweep is identified with :func:`leglib.identify.second_order`
-   on the foot height; aborted (unstable) points and responses that cannot be identified
-   are kept and marked as such, never given invented values;
+   on the foot height; aborted (unstable) points, responses that cannot be identified and
+   responses the second-order model does not describe (R^2 under :data:`MIN_R2_MAP`, an
+   overshoot of 100 % or more, an overdamped fit whose fast pole lies beyond the sampling's
+   Nyquist rate, no position control because a gain is near zero) are kept and marked as
+   such, never given numbers;
 2. the results go on the 3-D grid (pos_gain x vel_gain x vel_integrator_gain);
 3. gaps are filled by harmonic in-painting (of log zeta, log wn): missing cells solve the discrete Laplace
    equation with the measured cells fixed (a sparse scipy solve; the thesis used inpaintn,
@@ -12,16 +15,20 @@ Pipeline (Listings 7.6-7.8, done properly):
 4. the filled fields are interpolated cubically on a finer grid (as interp3, but in log
    gains and of log zeta, log wn: a cascade's zeta and wn scale like powers of its gains,
    which linear coordinates follow badly near small vel_gain); points that
-   touch an unstable cell, where cubic and linear interpolation disagree (the grid cannot
-   resolve the map there), or that come out non-physical (zeta <= 0, fn <= 0) are dropped;
+   lie in a grid cell whose corners are not all measured and identified (interpolation there
+   would rest on filled-in values: not supported by a measurement), where cubic and linear
+   interpolation disagree (the grid cannot resolve the map there), or that come out
+   non-physical (zeta <= 0, fn <= 0) are dropped: what is left is the achievable region;
 5. :meth:`GainMap.gains_for` answers a desired (zeta, fn) with the nearest achievable point
-   in a normalized (zeta, fn) space (a KD-tree; the thesis's dsearchn).
+   in (log zeta, log fn) (a KD-tree; the thesis's dsearchn), and raises
+   :class:`OutsideRegionError`, naming the nearest achievable point and its gains, when
+   that point is further than a relative tolerance from the request.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +42,32 @@ from .identify import IdentificationError, second_order
 
 STATUS_OK, STATUS_UNSTABLE, STATUS_FAILED, STATUS_MISSING = "ok", "unstable", "failed", "missing"
 AGREEMENT = 0.10  # relative cubic-vs-linear disagreement beyond which a fine point is not trusted
+MIN_R2_MAP = 0.90  # a step the second-order fit explains less of is "failed", not a map point
+MAX_OVERSHOOT = 1.0  # a second-order step overshoots less than 100 % of its step
+MIN_POS_GAIN = 0.1  # (turn/s)/turn: below it there is no position control to identify
+MIN_VEL_GAIN = 1e-4  # N*m/(turn/s): below it the cascade commands (almost) no torque
+TOLERANCE = 0.05  # relative distance in zeta and fn within which a target counts as achievable
+
+
+class OutsideRegionError(ValueError):
+    """A requested (zeta, fn) is outside the achievable region of a gain map.
+
+    Attributes
+    ----------
+    target : (zeta, fn [Hz]) that was asked for
+    nearest : :class:`Choice`, the nearest achievable point (its gains, zeta, fn)
+    """
+
+    def __init__(self, target, nearest, tolerance):
+        self.target = tuple(float(x) for x in target)
+        self.nearest = nearest
+        self.tolerance = tolerance
+        g = ", ".join(f"{x:.4g}" for x in nearest.gains)
+        super().__init__(
+            f"target (zeta {target[0]:.3g}, fn {target[1]:.3g} Hz) is outside the achievable region "
+            f"(no achievable point within {tolerance:.0%} in zeta and fn); the nearest achievable point is "
+            f"(zeta {nearest.zeta:.3g}, fn {nearest.fn:.3g} Hz) with gains (pos_gain, vel_gain, "
+            f"vel_integrator_gain) = ({g})")
 
 
 @dataclass
@@ -47,22 +80,73 @@ class PointResult:
     wn: float = math.nan
     r2: float = math.nan
     reason: str = ""
+    fit: object = field(default=None, repr=False, compare=False)  # the SecondOrderFit, when one was made
 
     @property
     def fn(self) -> float:
         return self.wn / (2 * math.pi)
 
 
+def step_shape_problem(t, y, fit) -> str | None:
+    """Why a fitted step response is not a second-order step, or None when it is one.
+
+    Parameters
+    ----------
+    t : (N,) time [s]
+    y : (N,) response (e.g. foot height [m])
+    fit : :class:`leglib.identify.SecondOrderFit` of (t, y)
+
+    The tests: the fit explains at least :data:`MIN_R2_MAP` of the response (R^2); the
+    response overshoots its final value by less than :data:`MAX_OVERSHOOT` of the step (no
+    second-order step overshoots 100 %); an overdamped fit's fast pole
+    wn (zeta + sqrt(zeta^2 - 1)) is slower than the sampling's Nyquist rate pi/dt (a faster
+    pole cannot be seen in the data, so its zeta would be a number the data does not hold).
+    """
+    if not fit.r2 >= MIN_R2_MAP:
+        return (f"not a second-order step: the fit explains R^2 = {fit.r2:.2f} of it "
+                f"(the map needs {MIN_R2_MAP})")
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    n = y.size
+    start = float(np.mean(y[: max(3, n // 50)]))
+    final = float(np.mean(y[-max(5, n // 5):]))
+    step = final - start
+    peak = float(np.max(y - final)) if step > 0 else float(np.max(final - y))
+    if step != 0 and peak / abs(step) >= MAX_OVERSHOOT:
+        return f"not a second-order step: it overshoots by {peak / abs(step):.0%} of its step"
+    if fit.zeta > 1:
+        fast = fit.wn * (fit.zeta + math.sqrt(fit.zeta ** 2 - 1))
+        nyquist = math.pi / float(np.median(np.diff(t)))
+        if fast > nyquist:
+            return (f"not a second-order step: the fit's fast pole ({fast:.3g} rad/s, zeta {fit.zeta:.3g}) "
+                    f"lies beyond the sampling's Nyquist rate ({nyquist:.3g} rad/s)")
+    return None
+
+
 def identify_response(resp, method: str = "fit") -> PointResult:
-    """Identify one :class:`leglib.odrive_io.StepResponse` (foot height ``y``)."""
+    """Identify one :class:`leglib.odrive_io.StepResponse` (foot height ``y``).
+
+    Returns a :class:`PointResult` with status "unstable" (the step was aborted), "failed"
+    (no position control because pos_gain < :data:`MIN_POS_GAIN` or vel_gain <
+    :data:`MIN_VEL_GAIN`; the data cannot be identified; or the response is not a
+    second-order step, :func:`step_shape_problem`) or "ok" with zeta, wn [rad/s] and r2.
+    A "failed" point never carries numbers; ``reason`` says why.
+    """
     g = tuple(float(x) for x in resp.gains)
     if not resp.completed:
         return PointResult(g, STATUS_UNSTABLE, reason=resp.abort_reason or "aborted")
+    if not (g[0] >= MIN_POS_GAIN and g[1] >= MIN_VEL_GAIN):
+        return PointResult(g, STATUS_FAILED, reason=(
+            f"no position control to identify: pos_gain {g[0]:g} (needs >= {MIN_POS_GAIN:g}) or "
+            f"vel_gain {g[1]:g} (needs >= {MIN_VEL_GAIN:g}) is (nearly) zero"))
     try:
         f = second_order(resp.t, resp.y, method=method)
     except IdentificationError as exc:
         return PointResult(g, STATUS_FAILED, reason=str(exc))
-    return PointResult(g, STATUS_OK, f.zeta, f.wn, f.r2)
+    problem = step_shape_problem(resp.t, resp.y, f)
+    if problem:
+        return PointResult(g, STATUS_FAILED, r2=f.r2, reason=problem, fit=f)
+    return PointResult(g, STATUS_OK, f.zeta, f.wn, f.r2, fit=f)
 
 
 def _identify_chunk(args):
@@ -128,13 +212,18 @@ class Achievable:
 
 @dataclass
 class Choice:
-    """Answer of :meth:`GainMap.nearest`: gains, the map's (zeta, fn) there, the normalized
-    distance to the request."""
+    """Answer of :meth:`GainMap.nearest`: gains (pos_gain, vel_gain, vel_integrator_gain),
+    the map's zeta and fn [Hz] there, and ``distance``, the larger of the relative
+    distances in zeta and in fn to the request (max(|log(zeta/zeta_req)|, |log(fn/fn_req)|))."""
 
     gains: tuple
     zeta: float
     fn: float
     distance: float
+
+    def within(self, tolerance: float = TOLERANCE) -> bool:
+        """True when the point is within ``tolerance`` (relative) of the request."""
+        return self.distance <= math.log1p(tolerance) + 1e-12
 
 
 class GainMap:
@@ -209,8 +298,9 @@ class GainMap:
         return self.wn / (2 * math.pi)
 
     def counts(self) -> dict:
+        """{status: number of grid points} (plain ``str`` and ``int``)."""
         vals, n = np.unique(self.status.astype(str), return_counts=True)
-        return dict(zip(vals, map(int, n)))
+        return {str(v): int(k) for v, k in zip(vals, n)}
 
     # -- filling and interpolation ------------------------------------------------------------
     def filled(self) -> tuple[np.ndarray, np.ndarray]:
@@ -223,9 +313,10 @@ class GainMap:
         """Cubic interpolation of the filled map on a finer regular grid (as interp3).
 
         Returns dict with the fine axes, ``zeta``, ``fn`` and a ``valid`` mask: False where
-        an unstable cell is among the interpolation neighbours, where cubic and linear
-        interpolation disagree by more than AGREEMENT (the grid cannot resolve the map
-        there), or where the value is non-physical.
+        the grid cell holding the point has a corner that is not "ok" (unstable, failed or
+        missing: the value there would rest on filled-in numbers, not on measurements),
+        where cubic and linear interpolation disagree by more than AGREEMENT (the grid
+        cannot resolve the map there), or where the value is non-physical.
         """
         key = tuple(points_per_axis)
         if self._fine is not None and self._fine["key"] == key:
@@ -248,11 +339,21 @@ class GainMap:
         z = np.exp(interp(np.log(zeta), "cubic"))
         w = np.exp(interp(np.log(wn), "cubic"))
         stab = interp(stable, "linear")
+        # supported: every corner of the enclosing grid cell measured and identified
+        ok = (self.status == STATUS_OK).reshape([len(a) for a in sub_axes])
+        corner_ok = np.ones(sub_mesh.shape[:-1], dtype=bool)
+        lower = []
+        for k, a in enumerate(sub_axes):
+            i = np.clip(np.searchsorted(a, sub_mesh[..., k], side="right") - 1, 0, max(len(a) - 2, 0))
+            lower.append(i)
+        for corner in np.ndindex(*(2,) * len(sub_axes)):
+            idx = tuple(np.minimum(lo + c, len(a) - 1) for lo, c, a in zip(lower, corner, sub_axes))
+            corner_ok &= ok[idx]
         # where cubic and linear interpolation disagree, the grid is too coarse to tell
         zl = np.exp(interp(np.log(zeta), "linear"))
         wl = np.exp(interp(np.log(wn), "linear"))
         trusted = (np.abs(z - zl) <= AGREEMENT * np.abs(zl)) & (np.abs(w - wl) <= AGREEMENT * np.abs(wl))
-        valid = (stab > 1 - 1e-9) & trusted & (z > 0) & (w > 0) & np.isfinite(z) & np.isfinite(w)
+        valid = (stab > 1 - 1e-9) & corner_ok & trusted & (z > 0) & (w > 0) & np.isfinite(z) & np.isfinite(w)
         self._fine = {"key": key, "axes": fine_axes, "zeta": z, "fn": w / (2 * math.pi), "valid": valid}
         return self._fine
 
@@ -269,24 +370,48 @@ class GainMap:
             a = self.achievable()
             if a.zeta.size == 0:
                 raise ValueError("the map has no achievable point (all unstable or failed?)")
-            scale = np.array([np.ptp(a.zeta) or 1.0, np.ptp(a.fn) or 1.0])
-            self._kd = (self._fine, cKDTree(np.column_stack([a.zeta, a.fn]) / scale), scale, a)
+            # log coordinates: a distance there is a relative error in zeta and in fn
+            self._kd = (self._fine, cKDTree(np.column_stack([np.log(a.zeta), np.log(a.fn)])), a)
         return self._kd[1:]
 
-    def nearest(self, zeta: float, fn: float) -> Choice:
-        """The achievable point nearest to (zeta, fn [Hz]) in (zeta, fn) normalized by the
-        region's extent."""
+    def nearest(self, zeta: float, fn: float, tolerance: float | None = None) -> Choice:
+        """The achievable point nearest to (zeta, fn [Hz]).
+
+        Parameters
+        ----------
+        zeta, fn : the requested damping ratio and natural frequency [Hz], positive
+        tolerance : when given, raise :class:`OutsideRegionError` unless the nearest point
+            is within this relative distance in both zeta and fn
+
+        Returns
+        -------
+        Choice: gains, the map's (zeta, fn) there and the relative distance (the larger of
+        the two relative errors, in log). Nearness is measured in (log zeta, log fn), the
+        larger of the two relative errors (Chebyshev), so the answer is the point whose
+        worse relative error is smallest.
+        """
         if not (np.isfinite(zeta) and np.isfinite(fn) and zeta > 0 and fn > 0):
             raise ValueError(f"desired zeta and fn must be positive, got zeta={zeta}, fn={fn}")
-        tree, scale, a = self._tree()
-        d, i = tree.query(np.array([zeta, fn]) / scale)
-        return Choice(gains=tuple(float(x) for x in a.gains[i]), zeta=float(a.zeta[i]), fn=float(a.fn[i]),
-                      distance=float(d))
+        tree, a = self._tree()
+        d, i = tree.query(np.log([zeta, fn]), p=np.inf)
+        c = Choice(gains=tuple(float(x) for x in a.gains[i]), zeta=float(a.zeta[i]), fn=float(a.fn[i]),
+                   distance=float(d))
+        if tolerance is not None and not c.within(tolerance):
+            raise OutsideRegionError((zeta, fn), c, tolerance)
+        return c
 
-    def gains_for(self, zeta: float, fn: float) -> tuple[float, float, float]:
+    def gains_for(self, zeta: float, fn: float, tolerance: float = TOLERANCE) -> tuple[float, float, float]:
         """(pos_gain, vel_gain, vel_integrator_gain) for a desired damping ratio and natural
-        frequency fn [Hz] (nearest achievable point)."""
-        return self.nearest(zeta, fn).gains
+        frequency fn [Hz].
+
+        Raises
+        ------
+        OutsideRegionError
+            when no achievable point is within ``tolerance`` (relative, in zeta and in fn)
+            of the request; the message names the nearest achievable point and its gains
+            (also in the exception's ``nearest``).
+        """
+        return self.nearest(zeta, fn, tolerance=tolerance).gains
 
     def predict(self, gains) -> tuple[float, float]:
         """(zeta, fn) the interpolated map gives at ``gains`` (cubic on the filled map)."""

@@ -459,9 +459,18 @@ def _simulate_joint(t, torque, J, b, c_pos, c_neg, v0, eps, substeps=4):
 class FrictionFit:
     """Single-joint friction and inertia: J dv/dt = tau - viscous v - coulomb(v) tanh(v/eps).
 
-    coulomb [N*m] (mean of the two directions), coulomb_pos, coulomb_neg [N*m],
-    viscous [N*m*s/rad], inertia [kg*m^2], their standard errors (``stderr`` dict), r2 and
-    rms [rad/s] of the velocity, aic.
+    Attributes
+    ----------
+    coulomb_pos, coulomb_neg : Coulomb friction [N*m] for positive and negative velocity;
+        NaN for a direction the data never excited (``identified_pos`` / ``identified_neg``
+        False): the data say nothing about it, so no number is given
+    viscous : [N*m*s/rad]
+    inertia : [kg*m^2]
+    v0 : initial velocity [rad/s]; eps : Coulomb smoothing velocity [rad/s]
+    stderr : standard errors by name (NaN for a direction not identified)
+    r2, rms : of the velocity fit (rms in rad/s); aic; n : samples
+    identified_pos, identified_neg : whether each direction was excited (moved faster than
+        a few eps for at least :data:`MIN_DIRECTION_SAMPLES` samples)
     """
 
     coulomb_pos: float
@@ -475,16 +484,37 @@ class FrictionFit:
     rms: float
     aic: float
     n: int
+    identified_pos: bool = True
+    identified_neg: bool = True
 
     @property
     def coulomb(self) -> float:
-        return 0.5 * (self.coulomb_pos + self.coulomb_neg)
+        """Coulomb friction [N*m]: the mean of the identified directions (one direction's
+        value when the data ran one way only; NaN when neither was excited)."""
+        vals = [c for c, ok in ((self.coulomb_pos, self.identified_pos), (self.coulomb_neg, self.identified_neg))
+                if ok]
+        return float(np.mean(vals)) if vals else math.nan
+
+    @property
+    def directions(self) -> str:
+        """Which directions the Coulomb values rest on: "both", "positive only",
+        "negative only" or "none"."""
+        return {(True, True): "both", (True, False): "positive only", (False, True): "negative only",
+                (False, False): "none"}[(bool(self.identified_pos), bool(self.identified_neg))]
 
     def simulate(self, t, torque, v0: float | None = None) -> np.ndarray:
-        """Velocity [rad/s] for torque samples [N*m] at times t [s] (held between samples)."""
+        """Velocity [rad/s] for torque samples [N*m] at times t [s] (held between samples).
+        A direction that was not identified is simulated with the other direction's
+        Coulomb value (an assumption, for simulation only)."""
         t = np.asarray(t, dtype=float)
+        cp = self.coulomb_pos if self.identified_pos else self.coulomb_neg
+        cn = self.coulomb_neg if self.identified_neg else self.coulomb_pos
+        cp, cn = (0.0 if not np.isfinite(c) else c for c in (cp, cn))
         return _simulate_joint(t, np.asarray(torque, dtype=float), self.inertia, self.viscous,
-                               self.coulomb_pos, self.coulomb_neg, self.v0 if v0 is None else v0, self.eps)
+                               cp, cn, self.v0 if v0 is None else v0, self.eps)
+
+
+MIN_DIRECTION_SAMPLES = 20  # samples beyond 3 eps a direction needs to count as excited
 
 
 def fit_friction(t, torque, velocity=None, position=None, inertia: float | None = None,
@@ -503,7 +533,9 @@ def fit_friction(t, torque, velocity=None, position=None, inertia: float | None 
 
     Output-error least squares on the velocity, with bounds, a smooth Coulomb term with
     separate values per direction (asymmetric data is fine), several starts. Uncertainties
-    from the Jacobian.
+    from the Jacobian. A direction the joint never moved in (fewer than
+    :data:`MIN_DIRECTION_SAMPLES` samples beyond 3 eps) is not identified: its Coulomb value
+    is NaN, its flag False, and ``coulomb`` is the excited direction's value.
     """
     t = np.asarray(t, dtype=float)
     tau = np.asarray(torque, dtype=float)
@@ -586,15 +618,29 @@ def fit_friction(t, torque, velocity=None, position=None, inertia: float | None 
     stderr = dict(zip(names, map(float, se)))
     if inertia is not None:
         stderr["inertia"] = 0.0
-    # the mean Coulomb's error from the two directions' (independent to first order)
     i_p, i_n = names.index("coulomb_pos"), names.index("coulomb_neg")
-    stderr["coulomb"] = float(0.5 * math.sqrt(max(cov[i_p, i_p] + cov[i_n, i_n] + 2 * cov[i_p, i_n], 0)))
+    # a direction the joint never moved in (beyond the smoothing) holds no information on
+    # its Coulomb value: it is reported as not identified, never averaged in
+    need = min(MIN_DIRECTION_SAMPLES, max(3, t.size // 20))
+    pos_ok = int(np.sum(v > 3 * eps)) >= need
+    neg_ok = int(np.sum(v < -3 * eps)) >= need
+    if pos_ok and neg_ok:
+        # the mean Coulomb's error from the two directions' (independent to first order)
+        stderr["coulomb"] = float(0.5 * math.sqrt(max(cov[i_p, i_p] + cov[i_n, i_n] + 2 * cov[i_p, i_n], 0)))
+    elif pos_ok or neg_ok:
+        stderr["coulomb"] = stderr["coulomb_pos" if pos_ok else "coulomb_neg"]
+    else:
+        stderr["coulomb"] = math.nan
+    if not pos_ok:
+        cp, stderr["coulomb_pos"] = math.nan, math.nan
+    if not neg_ok:
+        cn, stderr["coulomb_neg"] = math.nan, math.nan
     ssr = float(np.sum((vhat - v) ** 2))
     return FrictionFit(coulomb_pos=float(cp), coulomb_neg=float(cn), viscous=float(b), inertia=float(J),
                        v0=float(v0), eps=float(eps), stderr=stderr, r2=_r2(v, vhat),
                        rms=math.sqrt(ssr / t.size),
                        aic=_aic(ssr * effective_samples(vhat - v) / t.size, effective_samples(vhat - v), len(best.x)),
-                       n=int(t.size))
+                       n=int(t.size), identified_pos=pos_ok, identified_neg=neg_ok)
 
 
 # ---------------------------------------------------------------------------------------

@@ -49,14 +49,14 @@ def plot_model_difference(cmp: dict, axes=None):
         _, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     ext = np.degrees([cmp["theta"].min(), cmp["theta"].max(), cmp["gap"].min(), cmp["gap"].max()])
     panels = [
-        (cmp["D_rel"] * 100, "||D_a - D_b|| / ||D_b|| [%]"),
-        (cmp["G_diff"] * 1e3, "||g_a - g_b|| [mN m]"),
-        ((cmp["y_eq65"] - cmp["y_exact"]) * 1e3, "eq. 6.5 y minus exact foot y [mm]"),
+        (cmp["D_rel"] * 100, "||D_a - D_b|| / ||D_b|| [%]", "[%]"),
+        (cmp["G_diff"] * 1e3, "||g_a - g_b|| [mN m]", "[mN m]"),
+        ((cmp["y_eq65"] - cmp["y_exact"]) * 1e3, "eq. 6.5 y minus exact foot y [mm]", "[mm]"),
     ]
     images = []
-    for ax, (data, title) in zip(axes, panels):
+    for ax, (data, title, unit) in zip(axes, panels):
         im = ax.imshow(data, origin="lower", aspect="auto", extent=ext, cmap="magma")
-        ax.figure.colorbar(im, ax=ax)
+        ax.figure.colorbar(im, ax=ax, label=unit)
         ax.set_title(title)
         ax.set_xlabel("theta = (q1 + q2)/2 [deg]")
         ax.set_ylabel("q2 - q1 [deg]")
@@ -114,9 +114,11 @@ def plot_step_identification(t, y, fit, ax=None):
     ax = _ax(ax)
     lines = ax.plot(t, y * 1e3, "r-", label="measured")
     lines += ax.plot(t, fit.response(t) * 1e3, "b--",
-                     label=f"{fit.method}: zeta={fit.zeta:.3f}, fn={fit.fn:.2f} Hz, fd={fit.fd:.2f} Hz")
+                     label=f"{fit.method}: zeta={fit.zeta:.3f}, fn={fit.fn:.2f} Hz, fd={fit.fd:.2f} Hz, "
+                           f"R^2={fit.r2:.3f}")
     ax.set_xlabel("t [s]")
-    ax.set_ylabel("foot y [mm]")
+    ax.set_ylabel("foot height y [mm]")
+    ax.set_title("Step response and its second-order fit")
     ax.legend(fontsize=8)
     return lines
 
@@ -135,6 +137,7 @@ def plot_pole_map(d, ax=None):
     ax.axhline(0, color="0.6", lw=0.8)
     ax.set_xlabel("Re [1/s]")
     ax.set_ylabel("Im [1/s]")
+    ax.set_title("Poles")
     ax.legend(fontsize=8)
     return arts
 
@@ -152,29 +155,38 @@ def plot_step_comparison(series: dict, target_deg: float, ax=None, joint: str = 
     return lines
 
 
-def plot_gain_region(gm, ax=None, targets=None, marker=None):
+def plot_gain_region(gm, ax=None, targets=None, marker=None, numbered: bool = True):
     """The achievable (zeta, fn) region of a :class:`leglib.gainmap.GainMap` (the thesis's
-    Fig. 6.12), measured grid points on top; optional targets and a highlighted point."""
+    Fig. 6.12), measured grid points on top; optional targets ((M, 2) zeta, fn [Hz]),
+    numbered 1..M in order (to match a table's rows) when ``numbered``, and a highlighted
+    point ``marker`` (zeta, fn)."""
     ax = _ax(ax)
     a = gm.achievable()
-    arts = [ax.scatter(a.zeta, a.fn, s=2, c="0.75", label="interpolated, achievable")]
+    arts = [ax.scatter(a.zeta, a.fn, s=2, c="0.75", label="achievable (interpolated between identified points)")]
     ok = gm.status == "ok"
-    arts.append(ax.scatter(gm.zeta[ok], gm.fn[ok], s=14, c="b", label="measured grid points"))
-    if targets is not None:
-        t = np.atleast_2d(targets)
+    arts.append(ax.scatter(gm.zeta[ok], gm.fn[ok], s=14, c="b", label="measured grid points (identified)"))
+    hi = float(np.nanmax(a.zeta)) * 1.05 if a.zeta.size else 2.0
+    if targets is not None and len(targets):
+        t = np.atleast_2d(np.asarray(targets, dtype=float))
         arts.append(ax.scatter(t[:, 0], t[:, 1], s=60, marker="x", c="r", label="targets"))
+        if numbered:
+            for k, (z, f) in enumerate(t, start=1):
+                ax.annotate(str(k), (z, f), textcoords="offset points", xytext=(5, 4), fontsize=8, color="r")
+        hi = max(hi, float(np.max(t[:, 0])) * 1.05)
     if marker is not None:
         arts.append(ax.scatter([marker[0]], [marker[1]], s=120, marker="*", c="orange", label="this step"))
-    ax.set_xlabel("zeta [-]")
-    ax.set_ylabel("fn [Hz]")
-    ax.set_xlim(0, min(2.0, float(np.nanmax(a.zeta)) * 1.05 if a.zeta.size else 2.0))
+        hi = max(hi, float(marker[0]) * 1.05)
+    ax.set_xlabel("damping ratio zeta [-]")
+    ax.set_ylabel("natural frequency fn [Hz]")
+    ax.set_title("Achievable (zeta, fn) of the foot's step")
+    ax.set_xlim(0, min(hi, 3.0))
     ax.legend(fontsize=8)
     return arts
 
 
 def plot_map_slices(gm, field: str = "zeta", axes=None):
-    """One image per pos_gain: ``field`` ("zeta" or "fn") over vel_gain x vel_integrator_gain,
-    unstable cells hatched out (white)."""
+    """One image per pos_gain: ``field`` ("zeta" or "fn" [Hz]) over vel_gain x
+    vel_integrator_gain; cells without a value (unstable, failed) are left white."""
     import matplotlib.pyplot as plt
     data = gm.zeta if field == "zeta" else gm.fn
     n = len(gm.axes[0])
@@ -186,11 +198,13 @@ def plot_map_slices(gm, field: str = "zeta", axes=None):
     for k, ax in enumerate(axes):
         im = ax.imshow(data[k].T, origin="lower", aspect="auto", vmin=vmin, vmax=vmax, cmap="viridis",
                        extent=[gm.axes[1][0], gm.axes[1][-1], gm.axes[2][0], gm.axes[2][-1]])
-        ax.set_title(f"{field}, pos_gain = {gm.axes[0][k]:g}")
-        ax.set_xlabel("vel_gain")
-        ax.set_ylabel("vel_integrator_gain")
+        ax.set_title(f"{field}, pos_gain = {gm.axes[0][k]:g} (turn/s)/turn", fontsize=9)
+        ax.set_xlabel("vel_gain [N m/(turn/s)]")
+        if k == 0:  # shared by the row; repeated labels would overlap the neighbour
+            ax.set_ylabel("vel_integrator_gain [N m/turn]")
         images.append(im)
-    axes[-1].figure.colorbar(images[-1], ax=list(axes))
+    axes[-1].figure.colorbar(images[-1], ax=list(axes),
+                             label="zeta [-]" if field == "zeta" else "fn [Hz]")
     return images
 
 

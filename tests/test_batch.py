@@ -119,3 +119,33 @@ def test_run_ids_are_plain_directory_names():
     ids = [r["id"] for r in batch.runs_of(spec)]
     assert len(set(ids)) == 2
     assert all("/" not in i and len(i) <= 90 and i not in (".", "..") for i in ids)
+
+
+def test_index_shows_the_payload_study_answer(tmp_path):
+    """The index of the payload spec: notebook 05's errors against the payload (with units),
+    not the alphabetically first metrics; every run linked to its reports."""
+    spec = batch.load_spec("data/batch_payload.toml")
+    runs = batch.runs_of(spec)
+    results = {}
+    for k, r in enumerate(runs):
+        (tmp_path / r["id"]).mkdir()
+        for nb in spec["notebooks"]:
+            (tmp_path / r["id"] / f"{nb}.html").write_text("<html></html>")
+        err = 0.01 * (k + 1)  # errors growing with the payload, as a study would show
+        results[r["id"]] = {"status": "done", "params": r["params"], "metrics": {
+            "04_pid_sweeps": {"achievable": 100, "bldc": {"x": {"zeta": 1.0}}, "counts": {"ok": 300, "unstable": 30},
+                              "map_s": 0.5, "sweep_s": 2.0},
+            "05_validation": {"summary": {"map": {"median": err, "worst": 2 * err},
+                                          "model": {"median": err / 2, "worst": err}},
+                              "thesis_target": {"error_zeta": -err, "error_fn": err / 3}}}}
+        (tmp_path / r["id"] / "status.json").write_text(json.dumps(results[r["id"]]))
+    index = batch.write_index(tmp_path, runs, results, spec["notebooks"]).read_text()
+    assert "payload_mass [kg]" in index
+    assert "05: map method: median error [%]" in index and "05: model method: worst error [%]" in index
+    assert "bldc" not in index and "map_s" not in index and "sweep_s" not in index
+    for k, r in enumerate(runs):
+        assert f"<a href='{r['id']}/05_validation.html'>" in index and f"<a href='{r['id']}/status.json'>" in index
+        assert f"<td>{100 * 0.01 * (k + 1):.4g}</td>" in index  # the map's median error in %
+    assert (tmp_path / "summary.png").stat().st_size > 5000
+    vals = batch.summary_values(results[runs[-1]["id"]])
+    assert vals[("05_validation", "map method: worst error", "%")] == pytest.approx(2 * 0.01 * len(runs) * 100)

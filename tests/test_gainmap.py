@@ -122,3 +122,85 @@ def test_model_based_inverse_on_the_twin(twin_sweep):
     r = io.step_response(odrv, *gains)
     m = second_order(r.t, r.y)
     assert m.zeta == pytest.approx(0.5, rel=0.05) and m.fn == pytest.approx(6.0, rel=0.05)
+
+
+# -- an honest map: only what the leg does is offered ----------------------------------------
+
+@pytest.fixture(scope="module")
+def thesis_map():
+    """The thesis grid measured on the default twin, and the device to re-measure on."""
+    odrv = io.connect("virtual", seed=11)
+    io.apply_configuration(odrv)
+    io.calibrate(odrv)
+    grid = io.thesis_grid()
+    out = odrv.raw.step_batch(grid, vel_limit=odrv.config.step_vel_limit, abort_error_turns=0.8)
+    gm = GM.GainMap.from_responses(io._responses_from_batch(odrv, grid, out, 0.4), workers=1)
+    return odrv, gm
+
+
+def test_offered_points_agree_when_remeasured(thesis_map):
+    """Every offered point, measured again with its gains, identifies as the map said:
+    spread over the region, at its edges, and for requests outside it."""
+    odrv, gm = thesis_map
+    a = gm.achievable()
+    edges = [int(np.argmin(a.zeta)), int(np.argmax(a.zeta)), int(np.argmin(a.fn)), int(np.argmax(a.fn))]
+    requests = [(2.0, 3.0), (1.5, 4.0), (0.3, 2.5), (0.24, 5.0)]
+    requests += [(a.zeta[i], a.fn[i]) for i in edges]
+    requests += [tuple(x) for x in GM.spread_targets(a, 12, margin=0.0, seed=2)]
+    errors = []
+    for z, f in requests:
+        c = gm.nearest(z, f)
+        p = GM.identify_response(io.step_response(odrv, *c.gains))
+        assert p.status == "ok", (z, f, c, p.reason)
+        errors.append(max(abs(p.zeta / c.zeta - 1), abs(p.fn / c.fn - 1)))
+    errors = np.array(errors)
+    assert np.median(errors) < 0.05 and errors.max() < 0.15, errors
+
+
+def test_a_target_outside_the_region_is_refused_with_the_nearest_point(thesis_map):
+    _, gm = thesis_map
+    with pytest.raises(GM.OutsideRegionError, match="outside the achievable region") as err:
+        gm.gains_for(0.05, 30.0)
+    near = gm.nearest(0.05, 30.0)
+    assert err.value.nearest == near and not near.within()
+    msg = str(err.value)
+    assert f"zeta {near.zeta:.3g}" in msg and f"fn {near.fn:.3g} Hz" in msg and f"{near.gains[0]:.4g}" in msg
+    assert isinstance(err.value, ValueError)
+    # inside the region gains_for answers, and the answer is within the tolerance
+    a = gm.achievable()
+    z, f = a.zeta[len(a.zeta) // 2] * 1.01, a.fn[len(a.fn) // 2] * 0.99
+    gains = gm.gains_for(z, f)
+    c = gm.nearest(z, f)
+    assert gains == c.gains and abs(c.zeta / z - 1) <= GM.TOLERANCE and abs(c.fn / f - 1) <= GM.TOLERANCE
+
+
+def test_region_holds_only_measured_cells(thesis_map):
+    """No achievable point lies in a grid cell with a corner that is not identified."""
+    _, gm = thesis_map
+    a = gm.achievable()
+    ok = gm.status == "ok"
+    for g in a.gains[:: max(1, len(a.gains) // 500)]:
+        idx = [np.clip(np.searchsorted(ax, v, side="right") - 1, 0, len(ax) - 2) for ax, v in zip(gm.axes, g)]
+        assert ok[idx[0]:idx[0] + 2, idx[1]:idx[1] + 2, idx[2]:idx[2] + 2].all(), g
+    # the twin's map: zeta of a foot step on this leg stays of order one (no extrapolated trail)
+    assert a.zeta.max() < 3.0
+
+
+def test_zero_gains_and_non_second_order_steps_are_failed(thesis_map):
+    odrv, _ = thesis_map
+    for gains in [(0.0, 0.0, 0.0), (20.0, 0.0, 0.0), (0.0, 0.05, 0.0)]:
+        p = GM.identify_response(io.step_response(odrv, *gains))
+        assert p.status in ("failed", "unstable") and math.isnan(p.zeta), (gains, p)
+    # a step that overshoots by 110 %: no second-order step does
+    t = np.arange(750) * 0.002
+    y = 0.01 * (1 - np.exp(-20 * t) + 5.0 * 20 * t * np.exp(-20 * t))
+    assert (y.max() - y[-1]) / y[-1] > 1.0
+    resp = io.StepResponse(t=t, q1=t, q2=t, y=y, gains=(50.0, 0.05, 0.01), step=0.4)
+    p = GM.identify_response(resp)
+    assert p.status == "failed" and math.isnan(p.zeta) and "not a second-order step" in p.reason
+
+
+def test_counts_are_plain_python(synthetic):
+    c = synthetic.counts()
+    assert all(type(k) is str and type(v) is int for k, v in c.items())
+    assert "np.str_" not in str(c)

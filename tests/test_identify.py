@@ -164,3 +164,24 @@ def test_torque_run_file_round_trip(twin_run, tmp_path):
     np.testing.assert_allclose(back.q1, run.q1, atol=1e-7)
     np.testing.assert_allclose(back.table, run.table, atol=1e-6)
     np.testing.assert_allclose(back.t_cmd, run.t_cmd, atol=1e-6)
+
+
+def test_fit_friction_one_direction_only():
+    """Torque steps that drive the joint one way: the other direction is not identified
+    and does not enter ``coulomb``."""
+    tau = np.where(TF < 2.0, 0.05, np.where(TF < 4.0, 0.04, 0.065))
+    v = _simulate_joint(TF, tau, 0.004, 0.01, 0.031, 0.012, 0.0, 0.01)
+    assert v[10:].min() > 0  # it ran one way only
+    rng = np.random.default_rng(4)
+    f = fit_friction(TF, tau, velocity=v + rng.normal(0, 0.005, TF.size), eps=0.01)
+    assert f.identified_pos and not f.identified_neg and f.directions == "positive only"
+    assert np.isnan(f.coulomb_neg) and np.isnan(f.stderr["coulomb_neg"])
+    assert f.coulomb == f.coulomb_pos == pytest.approx(0.031, rel=0.05)
+    assert f.stderr["coulomb"] == f.stderr["coulomb_pos"]
+    # the same the other way round
+    g = fit_friction(TF, -tau, velocity=-v + rng.normal(0, 0.005, TF.size), eps=0.01)
+    assert g.directions == "negative only" and g.coulomb == g.coulomb_neg == pytest.approx(0.031, rel=0.05)
+    assert np.all(np.isfinite(g.simulate(TF, -tau)))
+    # data in both directions keeps both
+    h = fit_friction(TF, TAU, velocity=_joint(c_pos=0.015, c_neg=0.035), eps=0.01)
+    assert h.directions == "both" and h.coulomb == pytest.approx(0.025, rel=0.05)

@@ -7,7 +7,7 @@ import json
 import nbformat
 import pytest
 
-from leglib.notebooks import execute, notebook_paths
+from leglib.notebooks import count_figures, execute, notebook_paths
 
 NOTEBOOKS = notebook_paths()
 
@@ -51,8 +51,35 @@ def test_parameters_cell_is_plain_typed_values(path):
     assert all(v["help"] and v["inferred_type_name"] != "None" for v in inspected.values()), inspected
 
 
+def assert_report_has_figures(out_dir, stem, html=True):
+    """The executed notebook (and its HTML) carry its figures inline; widget panels leave a
+    static picture."""
+    nb = nbformat.read(str(out_dir / f"{stem}.ipynb"), as_version=4)
+    n = count_figures(nb)
+    assert n >= 1, f"{stem}: the executed notebook holds no figure"
+    # a panel (a widget holding an output area, not e.g. a progress bar) leaves a picture
+    state = nb.metadata.get("widgets", {}).get("application/vnd.jupyter.widget-state+json", {}).get("state", {})
+
+    def holds_output_area(model_id, seen=()):
+        m = state.get(model_id, {})
+        if m.get("model_name") == "OutputModel":
+            return True
+        kids = [c[len("IPY_MODEL_"):] for c in m.get("state", {}).get("children", []) if isinstance(c, str)]
+        return any(holds_output_area(k, seen + (model_id,)) for k in kids if k not in seen)
+
+    for c in nb.cells:
+        views = [o["data"]["application/vnd.jupyter.widget-view+json"]["model_id"] for o in c.get("outputs", [])
+                 if "application/vnd.jupyter.widget-view+json" in o.get("data", {})]
+        if any(holds_output_area(v) for v in views):
+            assert any("image/png" in o.get("data", {}) for o in c.outputs), f"{stem}: a panel left no picture"
+    if html:
+        page = (out_dir / f"{stem}.html").read_text()
+        assert page.count("data:image/png;base64") >= n, f"{stem}: the HTML lacks figures"
+
+
 def _run(path, tmp_path, **params):
-    execute(path, tmp_path, {"smoke": True, **params}, html=False)
+    execute(path, tmp_path, {"smoke": True, **params}, html=True)
+    assert_report_has_figures(tmp_path, path.stem)
     return json.loads((tmp_path / "metrics" / f"{path.stem}.json").read_text())
 
 
@@ -92,6 +119,7 @@ def test_bad_parameter_stops_notebook_early(tmp_path, index, params, message):
 @pytest.mark.notebook
 def test_02_friction_fitting(processed):
     tmp_path, m = processed
+    assert_report_has_figures(tmp_path, "02_friction_fitting", html=False)
     assert m["backend"] == "virtual"
     for name, rel in m["recovery_rel_error"].items():
         if name != "v_smooth":  # the model's smoothing width, not a friction coefficient

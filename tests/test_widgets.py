@@ -47,3 +47,53 @@ def test_gain_panel_readout_follows_sliders(leg):
         io.step_response(ref, 50.0, 0.046, 0.001)
         expected = widgets.step_readout(io.step_response(ref, 40.0, 0.046, 0.001))
     assert expected.startswith("zeta = ") and shown == _readout_html(expected)
+
+
+def test_pole_panel_complex_poles_nonlinear_preview_and_saturation(leg):
+    sys = M.linearize(leg)
+    panel = widgets.pole_placement_panel(sys, leg=leg, torque_limit=0.73)
+    (s_center, _, _), readout = panel.children[0].children, panel.children[1]
+    (s_zeta, t_poles), warning, out = panel.children[2].children, panel.children[3], panel.children[4]
+    assert warning.value == ""  # the thesis design stays far below the torque limit
+    # a damping below one: two complex pairs, placed exactly
+    s_zeta.value = 0.5
+    d = widgets.pole_panel_design(sys, -7.0, 0.007, 6.0, zeta=0.5)
+    assert readout.value == _readout_html(widgets.design_readout(d))
+    wn = np.abs(d.poles)
+    assert np.iscomplexobj(d.poles) and np.allclose(-d.poles.real / wn, 0.5)
+    eig = np.linalg.eigvals(sys.A - sys.B @ d.K)
+    assert np.sort_complex(eig) == pytest.approx(np.sort_complex(d.poles), rel=1e-6)
+    # any valid set as text, complex allowed; an invalid one is explained
+    t_poles.value = "-3+4j, -3-4j, -10, -11"
+    d = widgets.pole_panel_design(sys, -7.0, 0.007, 6.0, poles="-3+4j, -3-4j, -10, -11")
+    assert readout.value == _readout_html(widgets.design_readout(d))
+    t_poles.value = "-3+4j, -10, -11, -12"
+    assert readout.value.startswith("<b>cannot place:</b>")
+    t_poles.value = ""
+    # fast real poles: K asks for more than the torque limit, and the panel says so
+    s_zeta.value = 1.0
+    s_center.value = -30.0
+    d = widgets.pole_panel_design(sys, -30.0, 0.007, 6.0)
+    tau = widgets.demanded_torque(d, (0.0, np.radians(20.0)), np.linspace(0, 2, 401))
+    assert np.abs(tau).max() > 0.73
+    assert "torque limit" in warning.value and "saturate" in warning.value
+    assert "preview failed" not in warning.value  # the nonlinear leg, limited, was simulated
+
+
+def test_gain_panel_shows_fit_and_refuses_non_second_order_steps(leg):
+    with io.connect("virtual", leg=leg, seed=5) as dev:
+        io.apply_configuration(dev)
+        io.calibrate(dev)
+        panel = widgets.gain_step_panel(dev)
+        (s_pos, s_vel, s_int), readout = panel.children[0].children, panel.children[1]
+        assert "R^2 = " in readout.value
+        # vel_gain at its minimum: the leg barely damps, the response is no second-order step
+        s_vel.value = s_vel.min
+        s_int.value = 0.0
+        s_pos.value = 30.0
+        shown = readout.value
+        r = io.step_response(dev, 30.0, s_vel.min, 0.0)
+    from leglib import gainmap as GM
+    p = GM.identify_response(r)
+    assert p.status != "ok" and "zeta" not in shown, shown
+    assert ("not a second-order step" in shown) == (p.status == "failed")
