@@ -200,9 +200,9 @@ class _Plot:
             tl = (0.0, max(1.0, 2.0 * t[-1]))    # doubling: few redraws of the axes per run
         with np.errstate(all="ignore"):
             ang = b[[1, 2, 5, 6]] * scale
-            al = self._grow(old[1], np.nanmin(ang), np.nanmax(ang), 0.15)
+            al = self._grow(old[1], np.nanmin(ang), np.nanmax(ang), 0.3)
             cur = b[[3, 4]]
-            il = self._grow(old[2], np.nanmin(cur), np.nanmax(cur), 0.15) if np.any(np.isfinite(cur)) else old[2]
+            il = self._grow(old[2], np.nanmin(cur), np.nanmax(cur), 0.3) if np.any(np.isfinite(cur)) else old[2]
         pose = old[3]
         if self.leg is not None:
             step = max(1, self.buf.n // 500)
