@@ -357,8 +357,13 @@ def _load_gains(path, data) -> GainDesign:
                       source=_get(path, data, "source", dict))
 
 
-def load(path: str | Path):
+def load(path: str | Path, kind: str | None = None):
     """Read a design written by :func:`save`.
+
+    Parameters
+    ----------
+    path : the design file
+    kind : None (either), ``"state_feedback"`` or ``"cascade_gains"``: the kind expected
 
     Returns
     -------
@@ -371,6 +376,10 @@ def load(path: str | Path):
         naming the file and the field that is missing or malformed.
     """
     data = read(path)
+    if kind is not None and data["kind"] != kind:
+        if kind not in KINDS:
+            raise ValueError(f"kind must be one of {KINDS} or None, got {kind!r}")
+        raise _bad(path, "kind", f"is {data['kind']!r}, but a {kind!r} design is needed here")
     if data["kind"] == "state_feedback":
         return _load_state_feedback(Path(path), data)
     return _load_gains(Path(path), data)

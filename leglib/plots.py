@@ -295,6 +295,7 @@ def animate_leg(leg, q1, q2, t, ax=None, max_frames: int = 60, speed: float = 1.
     interval = 1000.0 * float(np.median(np.diff(t[idx]))) / speed
     anim = animation.FuncAnimation(fig, show_frame, frames=len(idx), interval=max(interval, 1.0), blit=False)
     anim.frame_index = idx
+    anim.figure = fig
     anim.links = links
     anim.foot_trace = trace_line
     anim.show_frame = show_frame
@@ -314,3 +315,23 @@ def save_animation(anim, path, fps: float | None = None) -> "Path":
     fps = fps if fps is not None else 1000.0 / anim._interval
     anim.save(str(path), writer=PillowWriter(fps=max(1, round(fps))))
     return path
+
+
+def show_animation(anim, figures_dir=None, name: str | None = None):
+    """The animation as a self-contained HTML player (``to_jshtml``: PNG frames embedded,
+    no ffmpeg needed) for a notebook's output; its figure is closed so the notebook does not
+    show a still copy too. With ``figures_dir`` and ``name`` a GIF
+    (``<figures_dir>/<name>.gif``) is written as well.
+
+    Returns
+    -------
+    IPython.display.HTML
+    """
+    import matplotlib.pyplot as plt
+    from IPython.display import HTML
+    html = HTML(anim.to_jshtml())
+    if figures_dir is not None and name:
+        from pathlib import Path
+        save_animation(anim, Path(figures_dir) / f"{name}.gif")
+    plt.close(anim.figure)
+    return html

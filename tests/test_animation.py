@@ -75,4 +75,7 @@ def test_exports_without_ffmpeg(leg, tmp_path):
     from PIL import Image
     with Image.open(gif) as im:
         assert im.n_frames == 30
+    shown = plots.show_animation(anim, tmp_path, "shown")
+    assert "<script" in shown.data and (tmp_path / "shown.gif").exists()
+    assert not plt.fignum_exists(anim.figure.number)          # no still copy left open
     plt.close("all")

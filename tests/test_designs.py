@@ -108,6 +108,13 @@ def test_malformed_gain_file_names_the_field(tmp_path, edit, field):
         designs.load(path)
 
 
+def test_kind_asked_for(tmp_path, sf_designs):
+    path = designs.save(tmp_path / "d.json", sf_designs[0])
+    assert designs.same(designs.load(path, kind="state_feedback"), sf_designs[0])
+    with pytest.raises(DesignFileError, match="'kind' is 'state_feedback', but a 'cascade_gains' design is needed"):
+        designs.load(path, kind="cascade_gains")
+
+
 def test_not_json_or_absent(tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text('{"kind": "state_feedback",\n "K": [1, 2,]}')
