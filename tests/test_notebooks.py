@@ -171,3 +171,19 @@ def test_05_validation(sweep04, tmp_path):
     assert m["summary"]["model"]["worst"] < 0.1
     assert set(m["thesis_target"]) >= {"gains", "zeta", "fn", "error_zeta", "error_fn"}
     assert m["summary"]["model"]["experiments"] < m["summary"]["map"]["experiments"]
+
+
+@pytest.mark.notebook
+def test_03_starts_from_a_saved_design(processed, tmp_path):
+    """With design_file the notebook uses the saved design, not its poles parameter."""
+    from leglib import designs, model as M, statefeedback as SF, widgets
+    from leglib.params import load_leg
+    saved = SF.design(M.linearize(load_leg("thesis")), (-9.0, -9.007, -9.014, -9.021), 5.0)
+    path = designs.save(tmp_path / "start.json", saved, linearization={"leg": "thesis"})
+    out02, _ = processed
+    m = _run(NOTEBOOKS[2], tmp_path, identified_path=str(out02 / "processed" / "friction_identified.json"),
+             processed_dir=str(tmp_path / "processed"), design_file=str(path))
+    assert m["readout"] == widgets.design_readout(saved)
+    assert m["eig_K_max_rel_error"] < 1e-6
+    # and saved again as it was loaded
+    assert designs.same(designs.load(tmp_path / "processed" / "design_03_thesis.json"), saved)
