@@ -299,8 +299,8 @@ class LiveView:
     Parameters
     ----------
     rate_hz : redraws per second at most (each redraw shows every sample received so far)
-    max_points : samples kept for drawing; beyond that every other sample is dropped from
-        the buffer (the whole run stays visible at half the resolution)
+    max_points : samples kept for drawing; beyond that the buffer is thinned evenly (every
+        other sample dropped, then only every second one kept): the whole run stays visible
     queue_size : bound of the queue between the callback and the drawing thread; when the
         drawer falls this far behind, the oldest queued samples are dropped (counted in
         ``stats["dropped"]``), the experiment is never held up
@@ -390,6 +390,7 @@ class LiveView:
     def clear(self) -> None:
         """Forget the buffered samples (the next experiment starts a fresh plot)."""
         with self._lock:
+            self._drained += len(self._queue)  # forgotten on purpose, not dropped
             self._queue.clear()
             self._buf.reset()
             if self._conn is not None:

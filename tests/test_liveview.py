@@ -107,8 +107,9 @@ def test_bad_samples_are_reported_new_runs_restart_and_long_runs_thin_out():
     steps = np.round(np.diff(d["t"]) * 1000).astype(int)
     assert set(steps) == {16}                                 # thinned evenly (stride 16 after 4 halvings)
     np.testing.assert_array_equal(d["q1"], np.round(d["t"] * 1000))   # never mixed up
+    view.on_sample({"t": 5.0, "q1": 1, "q2": 2})
     view.clear()
-    assert len(view.data()["t"]) == 0
+    assert len(view.data()["t"]) == 0 and view.stats["dropped"] == 0 and view.stats["queued"] == 0
 
 
 def test_supports_and_arguments():
