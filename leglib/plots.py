@@ -257,3 +257,148 @@ def plot_readings_map(rows, measure: str = "thesis", ax=None, targets=None):
         arts += ax.plot([z], [f], style, ms=10, mew=2, label=label)
     ax.legend(fontsize=8)
     return arts
+
+
+# ---------------------------------------------------------------------------------------
+# the leg animated
+
+
+# ---------------------------------------------------------------------------------------
+
+def leg_points(leg, q1, q2) -> np.ndarray:
+    """Joint positions of the exact five-bar, (..., 5, 2) [m]: upper joint 1, hip (origin),
+    upper joint 2, foot, upper joint 1 again (the closed outline :func:`draw_leg` draws).
+
+    ``q1``, ``q2`` [rad], scalars or arrays of one shape. The foot is the end of link 4
+    hung from link 1, i.e. :func:`leglib.model.foot_position`.
+    """
+    q1 = np.asarray(q1, dtype=float)
+    q2 = np.asarray(q2, dtype=float)
+    _, phi4 = M.lower_link_angles(leg, q1, q2)
+    p1 = np.stack([leg.l1 * np.cos(q1), leg.l1 * np.sin(q1)], axis=-1)
+    p2 = np.stack([leg.l2 * np.cos(q2), leg.l2 * np.sin(q2)], axis=-1)
+    foot = p1 + np.stack([leg.l4 * np.cos(phi4), leg.l4 * np.sin(phi4)], axis=-1)
+    return np.stack([p1, np.zeros_like(p1), p2, foot, p1], axis=-2)
+
+
+def animate_leg(leg, q1, q2, t, ax=None, max_frames: int = 60, speed: float = 1.0, trace: bool = True,
+                title: str | None = None, setpoint=None):
+    """A matplotlib animation of the five-bar: links, joints and the foot's trace.
+
+    Parameters
+    ----------
+    leg : :class:`leglib.params.LegParams` (link lengths of the exact five-bar)
+    q1, q2 : (N,) joint angles [rad] of any measured or simulated run
+    t : (N,) time [s], increasing
+    ax : axes to draw in (a new 3.6 x 4.4 in figure at 72 dpi when None)
+    max_frames : at most this many frames (evenly spaced samples, the last one included):
+        keeps the embedded size of ``to_jshtml()`` small (about 10-20 kB per frame)
+    speed : playback speed (1.0: real time)
+    trace : draw the foot's path up to the current frame
+    title : axes title
+    setpoint : optional (q1, q2) [rad] drawn as a grey leg (the target pose)
+
+    Returns
+    -------
+    matplotlib.animation.FuncAnimation
+        with ``frame_index`` (F,) the sample index shown in each frame, ``links`` the
+        Line2D of the leg, ``foot_trace`` the Line2D of the trace (or None), ``show_frame(k)``
+        drawing frame k (what the animation calls). Show it with ``anim.to_jshtml()``
+        (needs nothing) or ``to_html5_video()`` (needs ffmpeg); save a GIF with
+        :func:`save_animation`.
+    """
+    from matplotlib import animation
+
+    q1 = np.asarray(q1, dtype=float).ravel()
+    q2 = np.asarray(q2, dtype=float).ravel()
+    t = np.asarray(t, dtype=float).ravel()
+    if not (q1.shape == q2.shape == t.shape) or t.size < 2:
+        raise ValueError(f"q1, q2 and t must be 1-D of one length >= 2, got {q1.shape}, {q2.shape}, {t.shape}")
+    if not (np.all(np.isfinite(q1)) and np.all(np.isfinite(q2)) and np.all(np.isfinite(t))):
+        raise ValueError("q1, q2 and t must be finite")
+    if np.any(np.diff(t) <= 0):
+        raise ValueError("t must be strictly increasing")
+    if max_frames < 2 or speed <= 0:
+        raise ValueError(f"max_frames must be >= 2 and speed > 0, got {max_frames}, {speed}")
+    if ax is None:
+        import matplotlib.pyplot as plt
+        _, ax = plt.subplots(figsize=(3.6, 4.4), dpi=72)
+    fig = ax.figure
+    idx = np.unique(np.round(np.linspace(0, t.size - 1, min(max_frames, t.size))).astype(int))
+    pts = leg_points(leg, q1, q2)                         # (N, 5, 2)
+    bad = ~np.all(np.isfinite(pts), axis=(1, 2))
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        raise ValueError(f"the five-bar does not close at sample {i} (q1 = {q1[i]:.4f}, q2 = {q2[i]:.4f} rad)")
+    foot = pts[:, 3, :]
+    allp = pts.reshape(-1, 2)
+    if setpoint is not None:
+        sp = leg_points(leg, *setpoint)
+        ax.plot(sp[:, 0], sp[:, 1], "o-", color="0.75", lw=1.5, label="setpoint")
+        allp = np.vstack([allp, sp])
+    lo, hi = allp.min(axis=0), allp.max(axis=0)
+    pad = 0.08 * float(np.max(hi - lo)) + 0.005
+    ax.set_xlim(lo[0] - pad, hi[0] + pad)
+    ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    if title:
+        ax.set_title(title)
+    (links,) = ax.plot([], [], "o-", color="k", lw=2.5, ms=5)
+    trace_line = ax.plot([], [], "-", color="tab:red", lw=1, label="foot")[0] if trace else None
+    label = ax.text(0.02, 0.97, "", transform=ax.transAxes, va="top", fontsize=9)
+
+    def show_frame(k):
+        i = idx[k]
+        links.set_data(pts[i, :, 0], pts[i, :, 1])
+        label.set_text(f"t = {t[i] - t[0]:.3f} s")
+        arts = [links, label]
+        if trace_line is not None:
+            trace_line.set_data(foot[: i + 1, 0], foot[: i + 1, 1])
+            arts.append(trace_line)
+        return arts
+
+    interval = 1000.0 * float(np.median(np.diff(t[idx]))) / speed
+    anim = animation.FuncAnimation(fig, show_frame, frames=len(idx), interval=max(interval, 1.0), blit=False)
+    anim.frame_index = idx
+    anim.figure = fig
+    anim.links = links
+    anim.foot_trace = trace_line
+    anim.show_frame = show_frame
+    return anim
+
+
+def save_animation(anim, path, fps: float | None = None) -> "Path":
+    """Write an animation as a GIF (matplotlib's PillowWriter: no ffmpeg needed).
+
+    ``fps`` defaults to the animation's own rate (1000 / interval). Returns the path.
+    """
+    from pathlib import Path
+
+    from matplotlib.animation import PillowWriter
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fps = fps if fps is not None else 1000.0 / anim._interval
+    anim.save(str(path), writer=PillowWriter(fps=max(1, round(fps))))
+    return path
+
+
+def show_animation(anim, figures_dir=None, name: str | None = None):
+    """The animation as a self-contained HTML player (``to_jshtml``: PNG frames embedded,
+    no ffmpeg needed) for a notebook's output; its figure is closed so the notebook does not
+    show a still copy too. With ``figures_dir`` and ``name`` a GIF
+    (``<figures_dir>/<name>.gif``) is written as well.
+
+    Returns
+    -------
+    IPython.display.HTML
+    """
+    import matplotlib.pyplot as plt
+    from IPython.display import HTML
+    html = HTML(anim.to_jshtml())
+    if figures_dir is not None and name:
+        from pathlib import Path
+        save_animation(anim, Path(figures_dir) / f"{name}.gif")
+    plt.close(anim.figure)
+    return html

@@ -82,8 +82,9 @@ def lab(tmp_path_factory, processed):
     root = tmp_path_factory.mktemp("lab")
     out = root / "out"
     prepared = {
-        "03": {"smoke": True, "identified_path": str(processed[0] / "processed" / "friction_identified.json")},
-        "04": {"smoke": True, "sweep_dir": str(out / "sweep04")},
+        "03": {"smoke": True, "identified_path": str(processed[0] / "processed" / "friction_identified.json"),
+               "processed_dir": str(out / "processed")},
+        "04": {"smoke": True, "sweep_dir": str(out / "sweep04"), "processed_dir": str(out / "processed")},
     }
     metrics = {}
     for prefix, params in prepared.items():
@@ -312,3 +313,102 @@ def test_gain_slider_in_notebook_04(lab, browser):
 
     metrics = _slider_session(browser, lab, "04", "pos_gain", f"{gains['pos_gain'] + 1.0:.0f}", initial, moved)
     assert metrics["points"] == 32
+
+
+# ---------------------------------------------------------------------------------------
+# the live view: the plot changes in the page while an experiment runs
+# ---------------------------------------------------------------------------------------
+
+def _live_notebook(lab, name: str, experiment: str, result) -> Path:
+    """A notebook in the server's root: a LiveView shown, then ``experiment`` run (a cell
+    that feeds ``view.on_sample``), then the view's and the run's figures written to
+    ``result`` (JSON)."""
+    import nbformat
+    from nbformat.v4 import new_code_cell, new_notebook
+    cells = [
+        "import json, types\nimport numpy as np\nfrom leglib import liveview\nfrom leglib.params import load_leg\n"
+        "leg = load_leg('thesis')\nview = liveview.LiveView(leg=leg, rate_hz=10).display()",
+        experiment,
+        f"final = view.stop()\nwith open({str(result)!r}, 'w') as fh:\n    json.dump({{**final, **run_stats}}, fh)",
+    ]
+    nb = new_notebook(cells=[new_code_cell(c) for c in cells])
+    nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
+    path = lab["root"] / name
+    nbformat.write(nb, str(path))
+    return path
+
+
+def _watch_live_view(browser, lab, path: Path, result: Path, timeout: float = 240.0) -> tuple[list, dict]:
+    """Run All on the notebook at ``path``; while it runs, record every distinct picture the
+    live view shows. Returns (pictures seen while the experiment cell ran, the result JSON)."""
+    page = browser.new_page(viewport={"width": 1400, "height": 900})
+    try:
+        page.goto(f"{lab['base']}/lab/tree/{path.name}?reset&token={lab['token']}")
+        notebook = page.locator(".jp-NotebookPanel:not(.lm-mod-hidden)")
+        notebook.locator(".jp-Notebook-ExecutionIndicator[data-status='idle']").wait_for(timeout=120_000)
+        _wait_kernel_ready(lab, path.name)
+        page.locator(".jp-StatusBar-Item", has_text="| Idle").first.wait_for(timeout=60_000)
+        page.locator(".lm-MenuBar-item", has_text="Run").first.click()
+        page.locator(".lm-Menu-item[data-command='runmenu:run-all']").click()
+        img = page.locator("img.leglib-liveview").first
+        img.wait_for(timeout=120_000)
+        experiment = notebook.locator(".jp-Cell").nth(1).locator(".jp-InputPrompt")
+        seen, deadline = [], time.monotonic() + timeout
+        while not result.exists():
+            if time.monotonic() > deadline:
+                _screenshot(page, f"{path.stem}_timeout")
+                pytest.fail(f"{path.name} did not finish within {timeout:.0f} s:\n{_errors(page)}")
+            src = img.get_attribute("src")
+            if "*" in (experiment.text_content() or "") and src and (not seen or seen[-1] != src):
+                seen.append(src)
+                if len(seen) == 3:
+                    _screenshot(page, f"{path.stem}_running")
+            page.wait_for_timeout(100)
+        _screenshot(page, f"{path.stem}_done")
+        return seen, json.loads(result.read_text())
+    finally:
+        page.close()
+
+
+def test_live_view_redraws_while_a_run_plays(lab, browser):
+    """A recorded 5 s run fed to the view at its own 500 Hz pace (liveview.replay, the
+    callback an experiment calls): the picture changes in the page while the cell runs."""
+    result = lab["root"] / "live_replay.json"
+    path = _live_notebook(lab, "live_replay.ipynb", (
+        "t = np.arange(2500) * 0.002\ne = 1 - np.exp(-3 * t) * np.cos(12 * t)\n"
+        "run = types.SimpleNamespace(t=t, q1=leg.q1 - 0.3 * e, q2=leg.q2 + 0.3 * e,\n"
+        "                            iq=np.column_stack([np.exp(-t), -np.exp(-t)]))\n"
+        "run_stats = liveview.replay(run, view.on_sample, setpoint=(leg.q1 - 0.3, leg.q2 + 0.3))"), result)
+    seen, stats = _watch_live_view(browser, lab, path, result)
+    assert len(seen) >= 5, f"the live view changed {len(seen)} times during a 5 s run"
+    assert all(s.startswith("blob:") or s.startswith("data:image/png") for s in seen)
+    assert stats["received"] == 2500 and stats["dropped"] == 0 and stats["buffered"] == 2500
+    assert stats["achieved_period_s"] == pytest.approx(0.002, rel=0.05)   # the loop kept its pace
+
+
+def _experiments_take_on_sample() -> bool:
+    from leglib import liveview, odrive_io as io
+    return liveview.supports(io.step_response)
+
+
+@pytest.mark.skipif(not _experiments_take_on_sample(),
+                    reason="odrive_io.step_response has no on_sample parameter yet (it is added in odrive_io "
+                           "separately); this test drives the live view from a real step on the twin")
+def test_live_view_redraws_during_a_realtime_step(lab, browser):
+    """A 3 s step on the twin paced to the wall clock (realtime=True) with the view's
+    on_sample: the picture changes while the step runs, and the step keeps its 2 ms period."""
+    result = lab["root"] / "live_step.json"
+    path = _live_notebook(lab, "live_step.ipynb", (
+        "from leglib import odrive_io as io\n"
+        "with io.connect('virtual', seed=1, realtime=True) as dev:\n"
+        "    io.apply_configuration(dev)\n"
+        "    io.calibrate(dev)\n"
+        "    view.clear()\n"
+        "    r = io.step_response(dev, 50, 0.046, 0.001, duration=3.0, on_sample=view.on_sample)\n"
+        "run_stats = {'samples': len(r.t), 'sample_rate_hz': r.meta['sample_rate_hz'], 'completed': r.completed}"),
+        result)
+    seen, stats = _watch_live_view(browser, lab, path, result)
+    assert len(seen) >= 3, f"the live view changed {len(seen)} times during a 3 s realtime step"
+    assert stats["completed"] and stats["dropped"] == 0
+    assert stats["received"] >= stats["samples"] > 1000
+    assert stats["sample_rate_hz"] == pytest.approx(500, rel=0.02)

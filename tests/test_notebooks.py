@@ -77,6 +77,16 @@ def assert_report_has_figures(out_dir, stem, html=True):
         assert page.count("data:image/png;base64") >= n, f"{stem}: the HTML lacks figures"
 
 
+def _check_animations(executed, count: int, max_bytes: int = 3_000_000):
+    """The executed notebook shows ``count`` leg animations (matplotlib's JS players, PNG
+    frames embedded) and stays small enough to read and to keep."""
+    players = [o for c in nbformat.read(str(executed), as_version=4).cells if c.cell_type == "code"
+               for o in c.get("outputs", []) if 'class="animation"' in str(o.get("data", {}).get("text/html", ""))]
+    assert len(players) == count, len(players)
+    assert all("frames[1]" in o["data"]["text/html"] for o in players)
+    assert executed.stat().st_size < max_bytes, executed.stat().st_size
+
+
 def _run(path, tmp_path, **params):
     execute(path, tmp_path, {"smoke": True, **params}, html=True)
     assert_report_has_figures(tmp_path, path.stem)
@@ -86,6 +96,8 @@ def _run(path, tmp_path, **params):
 @pytest.mark.notebook
 def test_01_derivation(tmp_path):
     m = _run(NOTEBOOKS[0], tmp_path)
+    _check_animations(tmp_path / NOTEBOOKS[0].name, 1)
+    assert (tmp_path / "figures" / "01_leg_motion.gif").exists()
     assert m["eq511_max_rel_error"] < 0.01
     assert m["printed_A_max_real_eig"] > 0 > m["corrected_A_max_real_eig"]
     assert m["linear_vs_nonlinear_rms_deg"] < 0.02 * m["linear_vs_nonlinear_travel_deg"]
@@ -103,6 +115,8 @@ def test_01_derivation(tmp_path):
     (2, {"step_deg": 90.0}, "parameter 'step_deg' must be <= 40.0"),                 # out of range
     (3, {"backend": "serial"}, "parameter 'backend' must be one of ('virtual', 'usb')"),  # unknown backend
 ], ids=["type", "range", "backend"])
+
+
 def test_bad_parameter_stops_notebook_early(tmp_path, index, params, message):
     import papermill as pm
     with pytest.raises(pm.PapermillExecutionError) as err:
@@ -138,7 +152,13 @@ def test_02_friction_fitting(processed):
 @pytest.mark.notebook
 def test_03_pole_placement(processed, tmp_path):
     out02, _ = processed
-    m = _run(NOTEBOOKS[2], tmp_path, identified_path=str(out02 / "processed" / "friction_identified.json"))
+    m = _run(NOTEBOOKS[2], tmp_path, identified_path=str(out02 / "processed" / "friction_identified.json"),
+             processed_dir=str(tmp_path / "processed"))
+    _check_animations(tmp_path / NOTEBOOKS[2].name, 1)
+    from leglib import designs, statefeedback as SF
+    d = designs.load(tmp_path / "processed" / "design_03_thesis.json")
+    assert isinstance(d, SF.Design) and designs.read(tmp_path / "processed" / "design_03_identified.json")["Ki"]
+    assert designs.read(tmp_path / "processed" / "design_03_identified.json")["provenance"]["backend"] == "virtual"
     assert m["eig_K_max_rel_error"] < 1e-6 and m["eig_L_max_rel_error"] < 1e-6
     assert m["controllability_rank"] == 4 == m["observability_rank"]
     runs = m["runs"]
@@ -154,13 +174,18 @@ def test_03_pole_placement(processed, tmp_path):
 @pytest.fixture(scope="module")
 def sweep04(tmp_path_factory):
     out = tmp_path_factory.mktemp("nb04")
-    m = _run(NOTEBOOKS[3], out, sweep_dir=str(out / "sweep"))
+    m = _run(NOTEBOOKS[3], out, sweep_dir=str(out / "sweep"), processed_dir=str(out / "processed"))
     return out, m
 
 
 @pytest.mark.notebook
 def test_04_pid_sweeps(sweep04):
-    _, m = sweep04
+    out, m = sweep04
+    _check_animations(out / NOTEBOOKS[3].name, 1)
+    from leglib import designs
+    g = designs.load(out / "processed" / "design_04_thesis_target.json", kind="cascade_gains")
+    assert g.method == "map" and g.target == (0.24, 5.0) and g.measured is not None
+    assert g.source["sweep_dir"] == str(out / "sweep") and sum(g.source["counts"].values()) == 32
     assert m["points"] == 32 and sum(m["counts"].values()) == 32
     under, over = m["bldc"]["(100.0, 0.1, 10.0)"], m["bldc"]["(8.0, 5.0, 0.3)"]
     assert under["overshoot_pct"] > 10 and under["zeta"] < 1       # thesis Fig. 6.8a
@@ -178,7 +203,11 @@ def test_04_pid_sweeps(sweep04):
 @pytest.mark.notebook
 def test_05_validation(sweep04, tmp_path):
     out04, _ = sweep04
-    m = _run(NOTEBOOKS[4], tmp_path, sweep_dir=str(out04 / "sweep"))
+    m = _run(NOTEBOOKS[4], tmp_path, sweep_dir=str(out04 / "sweep"), processed_dir=str(tmp_path / "processed"))
+    from leglib import designs
+    g = designs.load(tmp_path / "processed" / "design_05_thesis_target.json")
+    assert g.gains == tuple(m["thesis_target"]["gains"]) and g.measured == (m["thesis_target"]["zeta"],
+                                                                            m["thesis_target"]["fn"])
     assert len(m["targets"]) == 5
     # the smoke map is a 2 x 4 x 4 grid: coarse; the model needs no grid
     assert m["summary"]["map"]["worst"] < 0.5
@@ -198,3 +227,19 @@ def test_05_validation(sweep04, tmp_path):
             assert tm["error_zeta"] < -0.1
     assert m["virtual_leg"]["achieved"]["k"] > 0
     assert m["summary"]["model"]["experiments"] < m["summary"]["map"]["experiments"]
+
+
+@pytest.mark.notebook
+def test_03_starts_from_a_saved_design(processed, tmp_path):
+    """With design_file the notebook uses the saved design, not its poles parameter."""
+    from leglib import designs, model as M, statefeedback as SF, widgets
+    from leglib.params import load_leg
+    saved = SF.design(M.linearize(load_leg("thesis")), (-9.0, -9.007, -9.014, -9.021), 5.0)
+    path = designs.save(tmp_path / "start.json", saved, linearization={"leg": "thesis"})
+    out02, _ = processed
+    m = _run(NOTEBOOKS[2], tmp_path, identified_path=str(out02 / "processed" / "friction_identified.json"),
+             processed_dir=str(tmp_path / "processed"), design_file=str(path))
+    assert m["readout"] == widgets.design_readout(saved)
+    assert m["eig_K_max_rel_error"] < 1e-6
+    # and saved again as it was loaded
+    assert designs.same(designs.load(tmp_path / "processed" / "design_03_thesis.json"), saved)
