@@ -132,10 +132,13 @@ def _normal_equations(t, y, p, A, g, need_jac, dt):
         else:
             f1 = math.exp(-h_dt / (zeta + root))
             f2 = math.exp(-(zeta + root) * h_dt)
-    if need_jac:
-        A[:, :] = 0.0
-        g[:] = 0.0
+    inv_root = 1.0 / root if root > 0.0 else 0.0
+    inv_q = 1.0 / q if q != 0.0 else 0.0
     ssr = 0.0
+    # J^T J and J^T r in registers (the offset's column is 1)
+    a00 = a10 = a11 = a20 = a21 = a22 = a30 = a31 = a32 = a33 = 0.0
+    a40 = a41 = a42 = a43 = a44 = 0.0
+    g0 = g1 = g2 = g3 = g4 = 0.0
     j0 = j1 = j2 = j4 = 0.0
     k = 0
     # recurrence state: exp(-zeta x) (cos, sin)(sqrt(q) x) and exp(-zeta x); or the two
@@ -148,7 +151,8 @@ def _normal_equations(t, y, p, A, g, need_jac, dt):
             if not rec:
                 eC, eS, eD = _terms(x, zeta, q)
             else:
-                if k % ANCHOR == 0:
+                if k == 0:
+                    k = ANCHOR
                     e = math.exp(-zeta * x)
                     if under:
                         zc = e * math.cos(root * x)
@@ -166,20 +170,20 @@ def _normal_equations(t, y, p, A, g, need_jac, dt):
                     if (e if under else e1) < 1e-250:
                         # flush: denormals are slow and the terms are nil here
                         zc = zs = e = e1 = e2 = 0.0
-                k += 1
+                k -= 1
                 if under:
                     eC = zc
-                    eS = zs / root
+                    eS = zs * inv_root
                 else:
                     eC = 0.5 * (e1 + e2)
-                    eS = (e1 - e2) / (2.0 * root)
+                    eS = (e1 - e2) * (0.5 * inv_root)
                 qx2 = q * x * x
                 if abs(qx2) <= 1e-3:
                     if not under:
                         e = math.sqrt(e1 * e2)
                     eD = e * x * x * x * (-1.0 / 3.0 + qx2 / 30.0 - qx2 * qx2 / 840.0)
                 else:
-                    eD = (x * eC - eS) / q
+                    eD = (x * eC - eS) * inv_q
             h = 1.0 - (eC + zeta * eS)
             r = offset + gain * h - y[i]
             if need_jac:
@@ -193,31 +197,39 @@ def _normal_equations(t, y, p, A, g, need_jac, dt):
                 j0 = j1 = j2 = j4 = 0.0
         ssr += r * r
         if need_jac:
-            # J^T J and J^T r; the offset's column is 1
-            A[0, 0] += j0 * j0
-            A[1, 0] += j1 * j0
-            A[1, 1] += j1 * j1
-            A[2, 0] += j2 * j0
-            A[2, 1] += j2 * j1
-            A[2, 2] += j2 * j2
-            A[3, 0] += j0
-            A[3, 1] += j1
-            A[3, 2] += j2
-            A[3, 3] += 1.0
-            A[4, 0] += j4 * j0
-            A[4, 1] += j4 * j1
-            A[4, 2] += j4 * j2
-            A[4, 3] += j4
-            A[4, 4] += j4 * j4
-            g[0] += j0 * r
-            g[1] += j1 * r
-            g[2] += j2 * r
-            g[3] += r
-            g[4] += j4 * r
+            a00 += j0 * j0
+            a10 += j1 * j0
+            a11 += j1 * j1
+            a20 += j2 * j0
+            a21 += j2 * j1
+            a22 += j2 * j2
+            a30 += j0
+            a31 += j1
+            a32 += j2
+            a33 += 1.0
+            a40 += j4 * j0
+            a41 += j4 * j1
+            a42 += j4 * j2
+            a43 += j4
+            a44 += j4 * j4
+            g0 += j0 * r
+            g1 += j1 * r
+            g2 += j2 * r
+            g3 += r
+            g4 += j4 * r
     if need_jac:
-        for a in range(5):
-            for b in range(a):
-                A[b, a] = A[a, b]
+        A[0, 0], A[1, 1], A[2, 2], A[3, 3], A[4, 4] = a00, a11, a22, a33, a44
+        A[1, 0] = A[0, 1] = a10
+        A[2, 0] = A[0, 2] = a20
+        A[2, 1] = A[1, 2] = a21
+        A[3, 0] = A[0, 3] = a30
+        A[3, 1] = A[1, 3] = a31
+        A[3, 2] = A[2, 3] = a32
+        A[4, 0] = A[0, 4] = a40
+        A[4, 1] = A[1, 4] = a41
+        A[4, 2] = A[2, 4] = a42
+        A[4, 3] = A[3, 4] = a43
+        g[0], g[1], g[2], g[3], g[4] = g0, g1, g2, g3, g4
     return 0.5 * ssr
 
 
