@@ -120,3 +120,8 @@ def test_sweep_batch_equals_one_by_one_on_the_twin():
     assert [repr(p) for p in many] == [repr(p) for p in one]  # NaN where unstable: compare text
     assert {p.status for p in many} >= {GM.STATUS_OK}
     assert all(math.isfinite(p.zeta) and p.r2 >= F.MIN_R2 for p in many if p.status == GM.STATUS_OK)
+
+
+def test_thresholds_are_identifys():
+    from leglib import identify
+    assert F.MIN_R2 == identify.MIN_R2
