@@ -27,7 +27,7 @@ import math
 import numpy as np
 from numba import njit
 
-# status codes of one response (messages in _MESSAGES, built by _error)
+# status codes of one response (their messages: _error)
 OK, SHORT, NONFINITE, NOT_INCREASING, FLAT, NOT_STEP, ZETA_BOUND, LOW_R2, NO_DECAY = range(9)
 MIN_R2 = 0.5          # as identify.MIN_R2: below this the data is not a second-order step
 ZETA_MAX = 100.0      # upper bound of zeta in the fit
