@@ -513,6 +513,11 @@ def _fit_one(t_in, y, out):
             best[:] = p
         if cost < 5e-4 * sst:
             break  # R^2 above 0.999 from this start: the other starts cannot matter
+    if best[0] != 1.0 and abs(best[0] - 1.0) <= 1e-6:
+        # identify._model takes this band as critical damping (no damped frequency): a fit
+        # that lands in it is critically damped in the model's own terms
+        best[0] = 1.0
+        best_cost = _normal_equations(t, y, best, np.empty((5, 5)), np.empty(5), False, dt)
     out[C_ZETA] = best[0]
     out[C_WN] = best[1]
     out[C_GAIN] = best[2]

@@ -125,3 +125,10 @@ def test_sweep_batch_equals_one_by_one_on_the_twin():
 def test_thresholds_are_identifys():
     from leglib import identify
     assert F.MIN_R2 == identify.MIN_R2
+
+
+@pytest.mark.parametrize("zeta", [1.0 - 5e-7, 1.0, 1.0 + 5e-7])
+def test_critical_band_is_critical_damping(zeta):
+    # identify._model takes |zeta - 1| <= 1e-6 as critical damping: so does the fit
+    f = second_order(T, _model(T, zeta, 40.0, 1.0, 0.0, 0.0))
+    assert f.zeta == 1.0 and math.isnan(f.fd) and f.overdamped
