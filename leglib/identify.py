@@ -313,6 +313,13 @@ def second_order(t, y, method: str = "fit"):
         raise ValueError(f"method must be one of {', '.join(map(repr, METHODS))}, got {method!r}")
     if method == "thesis":
         return _thesis_reading(t, y)
+    if method == "fit":
+        # validation, starts and fit in one compiled call (leglib.fastfit); a batch of one
+        from .fastfit import identify_batch
+        fit = identify_batch([t], [y])[0]
+        if isinstance(fit, IdentificationError):
+            raise fit
+        return fit
     t, y, y0, yf, step = _validate(t, y)
     t = t - t[0]
     est, n_peaks = _logdec(t, y, y0, yf, step)
@@ -325,48 +332,6 @@ def second_order(t, y, method: str = "fit"):
         zeta, wn = est
         yhat = _model(t, zeta, wn, step, y0, 0.0)
         return SecondOrderFit(zeta, wn, step, y0, 0.0, "corrected_logdec", _r2(y, yhat), n_peaks, False)
-    starts = []
-    if est is not None:
-        starts.append(est)
-    # rise time of the response gives a scale for wn when there is no oscillation; without
-    # two peaks the damping is high, so start there
-    cross = np.nonzero((y - y0) / step > 0.5)[0]
-    t50 = t[cross[0]] if cross.size else t[-1] / 4
-    for z in ((0.2, 0.7, 1.5) if n_peaks >= 2 else (0.9, 1.5, 0.4)):
-        starts.append((z, 1.8 / max(t50, 1e-3) * (1 + 0.6 * z)))
-    best = None
-    lo = [1e-3, 1e-2, -np.inf, -np.inf, 0.0]
-    hi = [100.0, 1e5, np.inf, np.inf, 0.5 * t[-1]]
-    def jac(p):
-        # offset and gain enter linearly: exact columns; forward differences for the rest
-        z, w, g, off, d = p
-        u = _unit_step(t - d, z, w)
-        J = np.empty((t.size, 5))
-        hz, hw, hd = 1e-6 * max(z, 1e-3), 1e-6 * max(w, 1e-3), 1e-6
-        J[:, 0] = g * (_unit_step(t - d, z + hz, w) - u) / hz
-        J[:, 1] = g * (_unit_step(t - d, z, w + hw) - u) / hw
-        J[:, 2] = u
-        J[:, 3] = 1.0
-        J[:, 4] = g * (_unit_step(t - d - hd, z, w) - u) / hd
-        return J
-
-    for z0, w0 in starts:
-        x0 = [min(max(z0, 2e-3), 99.0), min(max(w0, 2e-2), 9e4), step, y0, 0.0]
-        res = least_squares(lambda p: _model(t, *p) - y, x0, jac=jac, bounds=(lo, hi), method="trf",
-                            x_scale=[0.1, max(w0, 1.0) * 0.1, abs(step), abs(step), 0.005])
-        if best is None or res.cost < best.cost:
-            best = res
-        if res.cost < 5e-4 * float(np.sum((y - np.mean(y)) ** 2)):
-            break  # R^2 above 0.999 from this start: the other starts cannot matter
-    zeta, wn, gain, offset, delay = best.x
-    if zeta >= 0.99 * hi[0]:
-        raise IdentificationError(f"response too overdamped to identify (zeta reached the fit's bound {hi[0]})")
-    r2 = _r2(y, _model(t, *best.x))
-    if not r2 >= MIN_R2:
-        raise IdentificationError(f"response is not a second-order step: the best fit explains "
-                                  f"R^2 = {r2:.2f} of it (need {MIN_R2})")
-    return SecondOrderFit(float(zeta), float(wn), float(gain), float(offset), float(delay), "fit",
-                          r2, n_peaks, n_peaks < 2)
 
 
 # =======================================================================================
