@@ -162,10 +162,12 @@ def pole_placement_panel(sys, center: float = -7.0, spread: float = 0.007, obser
     return W.VBox([W.HBox([s_center, s_spread, s_obs]), readout, W.HBox([s_zeta, t_poles]), warning, out])
 
 
-def step_readout(resp, identified=None) -> str:
+def step_readout(resp, identified=None, leg=None) -> str:
     """The text the gain panel shows for one step response (also used by tests);
     ``identified``: the response's :func:`leglib.gainmap.identify_response`, when the
-    caller already has it. "zeta = ..., fn = ... Hz, R^2 = ..." for a second-order step;
+    caller already has it. "zeta = ..., fn = ... Hz, R^2 = ..." for a second-order step,
+    followed, with the nominal ``leg``, by the equivalent spring-damper-mass at the foot of
+    eqs. 6.1/6.3 (:func:`leglib.thesis.virtual_leg` with :func:`leglib.thesis.foot_mass`);
     "not a second-order step: <why>" or "unstable: <why>" otherwise."""
     from .gainmap import STATUS_FAILED, identify_response
     p = identify_response(resp) if identified is None else identified
@@ -174,7 +176,12 @@ def step_readout(resp, identified=None) -> str:
         return f"not a second-order step: {why}"
     if p.status != "ok":
         return f"{p.status}: {p.reason}"
-    return f"zeta = {p.zeta:.3f}, fn = {p.fn:.2f} Hz, R^2 = {p.r2:.3f}"
+    text = f"zeta = {p.zeta:.3f}, fn = {p.fn:.2f} Hz, R^2 = {p.r2:.3f}"
+    if leg is not None:
+        from .thesis import foot_mass, virtual_leg
+        v = virtual_leg(p.zeta, p.fn, foot_mass(leg))
+        text += f"; at the foot m = {v.m:.3f} kg, b = {v.b:.2f} N s/m, k = {v.k:.0f} N/m"
+    return text
 
 
 def foot_setpoint(leg, resp) -> float:
@@ -212,7 +219,7 @@ def gain_step_panel(odrv, gm=None, pos_gain: float = 50.0, vel_gain: float = 0.0
     def redraw(*_):
         resp = io.step_response(odrv, s_pos.value, s_vel.value, s_int.value)
         p = identify_response(resp)
-        text = step_readout(resp, p)
+        text = step_readout(resp, p, leg=getattr(odrv, "leg", None))
         readout.value = f"<code class='leglib-readout'>{text}</code>"
         with out:
             out.clear_output(wait=True)

@@ -307,8 +307,9 @@ def test_gain_slider_in_notebook_04(lab, browser):
     with io.connect("virtual", leg=load_leg(d["leg_name"]), **options) as dev:
         io.apply_configuration(dev)
         io.calibrate(dev)
-        initial = widgets.step_readout(io.step_response(dev, **gains))
-        moved = widgets.step_readout(io.step_response(dev, **{**gains, "pos_gain": gains["pos_gain"] + 1.0}))
+        initial = widgets.step_readout(io.step_response(dev, **gains), leg=dev.leg)
+        moved = widgets.step_readout(io.step_response(dev, **{**gains, "pos_gain": gains["pos_gain"] + 1.0}),
+                                     leg=dev.leg)
     assert initial.startswith("zeta = ") and moved.startswith("zeta = ") and initial != moved
 
     metrics = _slider_session(browser, lab, "04", "pos_gain", f"{gains['pos_gain'] + 1.0:.0f}", initial, moved)

@@ -45,8 +45,9 @@ def test_gain_panel_readout_follows_sliders(leg):
         shown = readout.value
     with device() as ref:  # the same device history, replayed without the panel
         io.step_response(ref, 50.0, 0.046, 0.001)
-        expected = widgets.step_readout(io.step_response(ref, 40.0, 0.046, 0.001))
+        expected = widgets.step_readout(io.step_response(ref, 40.0, 0.046, 0.001), leg=ref.leg)
     assert expected.startswith("zeta = ") and shown == _readout_html(expected)
+    assert "at the foot m = " in expected and "N/m" in expected   # eqs. 6.1/6.3
 
 
 def test_pole_panel_complex_poles_nonlinear_preview_and_saturation(leg):
