@@ -80,7 +80,7 @@ def _thesis_grid_responses(seed: int = 11):
     from leglib import odrive_io as io
     dev = _device(seed)
     grid = io.thesis_grid()
-    out = dev.raw.step_batch(grid, vel_limit=dev.config.step_vel_limit, abort_error_turns=0.8)
+    out = dev.sim.step_batch(grid, vel_limit=dev.config.step_vel_limit, abort_error_turns=0.8)
     return io._responses_from_batch(dev, grid, out, 0.4)
 
 

@@ -123,14 +123,16 @@ def step_shape_problem(t, y, fit) -> str | None:
     return None
 
 
-def identify_response(resp, method: str = "fit") -> PointResult:
+def identify_response(resp, method: str = "fit", fit=None) -> PointResult:
     """Identify one :class:`leglib.odrive_io.StepResponse` (foot height ``y``).
 
     Returns a :class:`PointResult` with status "unstable" (the step was aborted), "failed"
     (no position control because pos_gain < :data:`MIN_POS_GAIN` or vel_gain <
     :data:`MIN_VEL_GAIN`; the data cannot be identified; or the response is not a
     second-order step, :func:`step_shape_problem`) or "ok" with zeta, wn [rad/s] and r2.
-    A "failed" point never carries numbers; ``reason`` says why.
+    A "failed" point never carries numbers; ``reason`` says why. ``fit``: the response's
+    ``second_order`` result (or its IdentificationError) when already computed, e.g. by
+    :func:`identify_many`'s batch.
     """
     g = tuple(float(x) for x in resp.gains)
     if not resp.completed:
@@ -140,7 +142,9 @@ def identify_response(resp, method: str = "fit") -> PointResult:
             f"no position control to identify: pos_gain {g[0]:g} (needs >= {MIN_POS_GAIN:g}) or "
             f"vel_gain {g[1]:g} (needs >= {MIN_VEL_GAIN:g}) is (nearly) zero"))
     try:
-        f = second_order(resp.t, resp.y, method=method)
+        if isinstance(fit, IdentificationError):
+            raise fit
+        f = second_order(resp.t, resp.y, method=method) if fit is None else fit
     except IdentificationError as exc:
         return PointResult(g, STATUS_FAILED, reason=str(exc))
     problem = step_shape_problem(resp.t, resp.y, f)
@@ -172,18 +176,8 @@ def identify_many(responses, method: str = "fit", workers: int | None = None) ->
         return [identify_response(r, method) for r in responses]
     done = [r for r in responses if r.completed]
     fits = iter(identify_batch([r.t for r in done], [r.y for r in done]))
-    out = []
-    for r in responses:
-        if not r.completed:
-            out.append(identify_response(r, method))  # unstable: nothing to fit
-            continue
-        f = next(fits)
-        g = tuple(float(x) for x in r.gains)
-        if isinstance(f, IdentificationError):
-            out.append(PointResult(g, STATUS_FAILED, reason=str(f)))
-        else:
-            out.append(PointResult(g, STATUS_OK, f.zeta, f.wn, f.r2))
-    return out
+    # the same checks as one by one (gains, shape, fit quality), on the batch's fits
+    return [identify_response(r, method, fit=next(fits) if r.completed else None) for r in responses]
 
 
 def harmonic_fill(values: np.ndarray, known: np.ndarray) -> np.ndarray:

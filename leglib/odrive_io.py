@@ -908,8 +908,10 @@ def _check_step(dev: Device, step, duration, sample_period, vel_limit) -> None:
                          f"at least 2 counts are needed")
     if vel_limit is not None:
         number("vel_limit", vel_limit)
-        if vel_limit <= 0:
-            raise ValueError(f"vel_limit must be positive [turn/s], got {vel_limit}")
+        high = dev.config.step_vel_limit
+        if not 0 < vel_limit <= high:
+            raise ValueError(f"vel_limit must be in (0, {high}] turn/s, got {vel_limit} "
+                             f"({dev.config.source_file}: step_vel_limit, the experiments' safety bound)")
 
 
 def step_response(odrv, pos_gain: float, vel_gain: float, vel_integrator_gain: float,

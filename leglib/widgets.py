@@ -176,10 +176,12 @@ def step_readout(resp, identified=None, leg=None) -> str:
         return f"not a second-order step: {why}"
     if p.status != "ok":
         return f"{p.status}: {p.reason}"
-    text = f"zeta = {p.zeta:.3f}, fn = {p.fn:.2f} Hz, R^2 = {p.r2:.3f}"
+    zeta, fn = round(p.zeta, 3), round(p.fn, 2)
+    text = f"zeta = {zeta:.3f}, fn = {fn:.2f} Hz, R^2 = {p.r2:.3f}"
     if leg is not None:
+        # of the (zeta, fn) shown, so the line is a function of what the reader sees
         from .thesis import foot_mass, virtual_leg
-        v = virtual_leg(p.zeta, p.fn, foot_mass(leg))
+        v = virtual_leg(zeta, fn, foot_mass(leg))
         text += f"; at the foot m = {v.m:.3f} kg, b = {v.b:.2f} N s/m, k = {v.k:.0f} N/m"
     return text
 

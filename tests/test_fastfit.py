@@ -113,7 +113,7 @@ def test_sweep_batch_equals_one_by_one_on_the_twin():
     io.apply_configuration(odrv)
     io.calibrate(odrv)
     grid = np.array([(p, v, i) for p in (20.0, 50.0) for v in (0.002, 0.03, 0.15) for i in (0.002, 0.08)])
-    out = odrv.raw.step_batch(grid, vel_limit=odrv.config.step_vel_limit, abort_error_turns=0.8)
+    out = odrv.sim.step_batch(grid, vel_limit=odrv.config.step_vel_limit, abort_error_turns=0.8)
     responses = io._responses_from_batch(odrv, grid, out, 0.4)
     many = GM.identify_many(responses)
     one = [GM.identify_response(r) for r in responses]

@@ -409,3 +409,50 @@ def test_fuzz_interrupts_then_resume(tmp_path, monkeypatch):
         gains = sorted(tuple(dataio.read_measurement(p).gains) for p in dataio.list_measurements(d))
         assert gains == sorted(grid)  # every point once, complete and correct
         assert dataio.find_uncommitted(d) == []
+
+
+# -- experiment arguments ------------------------------------------------------------------
+
+_EXPERIMENT_VALUES = [True, False, np.bool_(True), math.nan, math.inf, -math.inf, -1.0, 0.0, 1e-9,
+                      1e-4, 0.002, 0.4, 1.5, 10.0, 1e308, "0.4", None, [0.4]]
+
+
+def test_fuzz_step_response_arguments():
+    """Random, mostly bad arguments to :func:`leglib.odrive_io.step_response` on the twin:
+    each call either raises a ValueError/TypeError naming the argument it refuses, or runs a
+    step whose record is finite, sampled as asked and flagged completed only without a
+    firmware error; the device is left IDLE and usable either way (seeded, bounded)."""
+    from leglib import odrive_io as io
+    rng = _rng(7001)
+    names = ("pos_gain", "vel_gain", "vel_integrator_gain", "step", "duration", "sample_period", "vel_limit")
+    good = {"pos_gain": 30.0, "vel_gain": 0.05, "vel_integrator_gain": 0.02, "step": 0.4, "duration": 0.3,
+            "sample_period": 0.002, "vel_limit": None}
+    ran = refused = 0
+    with io.connect("virtual", seed=7001) as dev:
+        io.apply_configuration(dev)
+        io.calibrate(dev)
+        for _ in range(60):
+            args = dict(good)
+            bad = list(rng.choice(names, size=int(rng.integers(0, 3)), replace=False))
+            for name in bad:
+                args[name] = _EXPERIMENT_VALUES[int(rng.integers(len(_EXPERIMENT_VALUES)))]
+            try:
+                r = io.step_response(dev, **args)
+            except (ValueError, TypeError) as exc:
+                refused += 1
+                msg = str(exc)
+                assert any(n in msg for n in bad), (args, msg)   # the refused argument is named
+                assert len(msg) < 400
+            else:
+                ran += 1
+                assert len(r.t) >= 2 and np.all(np.isfinite(r.q1)) and np.all(np.isfinite(r.q2))
+                assert np.all(np.diff(r.t) > 0)
+                if r.completed:
+                    assert r.t[-1] <= args["duration"] + 1e-9
+                    assert abs(np.median(np.diff(r.t)) - args["sample_period"]) < 0.5 * args["sample_period"] + dev.sim.twin.dt
+                    assert not io._any_error(dev)   # completed only without a firmware error
+            for a in (0, 1):
+                assert int(dev.get(a, "current_state")) == io.AXIS_STATE_IDLE
+            if io._any_error(dev):
+                io.clear_errors(dev)
+    assert ran >= 5 and refused >= 20, (ran, refused)

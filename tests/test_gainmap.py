@@ -133,7 +133,7 @@ def thesis_map():
     io.apply_configuration(odrv)
     io.calibrate(odrv)
     grid = io.thesis_grid()
-    out = odrv.raw.step_batch(grid, vel_limit=odrv.config.step_vel_limit, abort_error_turns=0.8)
+    out = odrv.sim.step_batch(grid, vel_limit=odrv.config.step_vel_limit, abort_error_turns=0.8)
     gm = GM.GainMap.from_responses(io._responses_from_batch(odrv, grid, out, 0.4), workers=1)
     return odrv, gm
 

@@ -90,7 +90,7 @@ def _variant_of(tmp_path: Path, stem: str, old: str, new: str) -> Path:
 
 @pytest.mark.parametrize("stem,old,new,message", [
     ("leg_thesis", "[geometry]\n", '[geometry]\nl5 = { value = 0.1, unit = "m", source = "x" }\n',
-     ":28: unknown field 'geometry.l5'"),
+     ":{line}: unknown field 'geometry.l5'"),
     ("leg_thesis", "[geometry]\n", "[geometri]\nl1 = 1\n[geometry]\n", "unknown section [geometri]; did you mean 'geometry'?"),
     ("leg_thesis", "lc3 = { value", "lcc3 = { value", "unknown field 'com.lcc3'; did you mean 'lc3'?"),
     ("leg_thesis", "g = { value = 9.81,", "g = { vlaue = 1, value = 9.81,", "unknown key 'vlaue'"),
@@ -106,6 +106,9 @@ def test_typos_and_impossible_values_are_refused_at_load(tmp_path, stem, old, ne
     from leglib.params import load_odrive_config, load_plant
     loader = {"leg_thesis": load_leg, "odrive_thesis": load_odrive_config, "plant_default": load_plant}[stem]
     bad = _variant_of(tmp_path, stem, old, new)
+    # {line}: the line the inserted field landed on (the line after the section header)
+    if "{line}" in message:
+        message = message.replace("{line}", str(bad.read_text().splitlines().index(old.strip()) + 2))
     with pytest.raises(ParameterError) as err:
         loader(bad)
     assert message in str(err.value) and str(bad) in str(err.value)

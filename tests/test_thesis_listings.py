@@ -405,6 +405,7 @@ def test_listing_72_calibration_then_velocity(thesis_odrive):
         assert (p1[a] - p0[a]) / (t1 - t0) == pytest.approx(1.0, abs=0.25)  # motor turn/s
     run_console("odrv0.axis0.requested_state = AXIS_STATE_IDLE\n"
                 "odrv0.axis1.requested_state = AXIS_STATE_IDLE\n", ns)
+    time.sleep(0.01)   # the axis thread takes the request up about 1 ms later (axis.cpp:290)
     assert odrv0.axis0.current_state == 1 and odrv0.axis1.current_state == 1
 
 
