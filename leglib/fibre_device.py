@@ -556,7 +556,7 @@ def find_any(*, seed: int = 0, plant="default", firmware: str = "0.5.6", realtim
             raise ValueError(f"serial_number={serial_number!r}: no virtual ODrive has this serial number "
                              f"(they are {SERIAL_BASE:012X} + seed)")
         serial, seed = wanted, wanted - SERIAL_BASE
-    allowed = {"config", "noise", "disconnect_after"}
+    allowed = {"config", "noise", "disconnect_after", "payload_off_for_calibration"}
     unknown = set(options) - allowed
     if unknown:
         raise TypeError(f"find_any: unknown option(s) {sorted(unknown)}; allowed: seed, plant, firmware, "

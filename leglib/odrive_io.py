@@ -344,7 +344,8 @@ def connect(backend: str = "virtual", *, leg: str | LegParams = "thesis",
     config = load_odrive_config(config) if isinstance(config, (str, Path)) else config
     if backend == "virtual":
         from .virtual_odrive import find_any
-        allowed = {"seed", "plant", "realtime", "firmware", "disconnect_after", "noise"}
+        allowed = {"seed", "plant", "realtime", "firmware", "disconnect_after", "noise",
+                   "payload_off_for_calibration"}
         unknown = set(virtual_options) - allowed
         if unknown:
             raise TypeError(f"connect(backend='virtual'): unknown option(s) {sorted(unknown)}; "
@@ -611,10 +612,12 @@ def calibrate(dev: Device, timeout: float = 60.0, poll: float = 0.1, zero: bool 
             dev.axes = dev.axes.zeroed(after)
 
 
-def _rest_positions(dev: Device, settle: float = 1.0, max_speed: float = 0.01) -> np.ndarray:
+def _rest_positions(dev: Device, settle: float = 1.0, max_speed: float = 0.01,
+                    patience: float = 10.0) -> np.ndarray:
     """Motor positions [turn] (joint 0's motor, joint 1's motor) of the leg at rest: both
-    axes IDLE, ``settle`` s, then the mean of a few ``pos_estimate`` readings; refused while
-    a motor still turns faster than ``max_speed`` turn/s."""
+    axes IDLE, ``settle`` s, then the mean of a few ``pos_estimate`` readings once both
+    motors turn slower than ``max_speed`` turn/s; a leg still swinging after ``patience``
+    more seconds (a heavy foot rocking on its stop) is refused."""
     with safe(dev):
         _wait_states(dev, (0, 1), AXIS_STATE_IDLE, what="going IDLE before zeroing")
         dev.sleep(settle)
@@ -623,15 +626,18 @@ def _rest_positions(dev: Device, settle: float = 1.0, max_speed: float = 0.01) -
         def mean_pos(n=8):
             return np.mean([(float(dev.get(a1, "pos_estimate")), float(dev.get(a2, "pos_estimate")))
                             for _ in range(n)], axis=0)
-        t0, p0 = dev.time(), mean_pos()
-        dev.sleep(0.25)
-        p1 = mean_pos()
-        speed = np.abs(p1 - p0) / max(dev.time() - t0, 1e-9)
-        for a, v in zip((a1, a2), speed):
-            if v > max_speed:
-                raise ExperimentError(f"axis{a} still turns at {v:.3f} turn/s: the leg is not at rest; "
-                                      f"zeroing needs it resting on its stop")
-    return p1
+        deadline = _Deadline(dev, patience, "the leg coming to rest for zeroing")
+        while True:
+            t0, p0 = dev.time(), mean_pos()
+            dev.sleep(0.25)
+            p1 = mean_pos()
+            speed = np.abs(p1 - p0) / max(dev.time() - t0, 1e-9)
+            if np.all(speed <= max_speed):
+                return p1
+            if deadline.expired():
+                a, v = max(zip((a1, a2), speed), key=lambda av: av[1])
+                raise ExperimentError(f"axis{a} still turns at {v:.3f} turn/s after {patience:g} s: the leg "
+                                      f"is not at rest; zeroing needs it resting on its stop")
 
 
 def zero_joints(odrv, settle: float = 1.0, max_speed: float = 0.01) -> tuple[float, float]:

@@ -537,6 +537,7 @@ class Twin:
         self.noise = bool(noise)
         self.dt = 1.0 / self.config.loop_frequency
         self.P = param_vector(self.leg)
+        self.payload_mounted = True
         leg = self.leg
         J1 = leg.I1 + leg.Jd1 + leg.m1 * leg.lc1 ** 2
         J2 = leg.I2 + leg.Jd2 + leg.m2 * leg.lc2 ** 2
@@ -552,6 +553,16 @@ class Twin:
                              p.current_noise if noise else 0.0, motor.torque_constant, 1.0 if quantize else 0.0,
                              float(motor.pole_pairs), motor.phase_resistance])
         self.state = self._initial_state(batch)
+
+    def mount_payload(self, mounted: bool) -> None:
+        """Put the plant's foot payload on (True) or take it off (False) the simulated leg.
+        The plant (its parameters, what the device reports) keeps the payload either way;
+        only the mechanics simulated from now on change."""
+        p = self.plant if mounted else self.plant.replace(payload_mass=0.0)
+        self.leg = true_leg(p)
+        self.P = param_vector(self.leg)
+        self.payload_mounted = bool(mounted)
+        self.__dict__.pop("_fixed", None)   # the kernel's cached copies of P
 
     # -- state -----------------------------------------------------------------------
     def _initial_state(self, batch: int) -> TwinState:

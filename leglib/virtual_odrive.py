@@ -201,17 +201,23 @@ class VirtualODrive:
     firmware : "0.5.6" (default) or "0.5.1"
     disconnect_after : raise :class:`DeviceLostError` from the N-th transaction on (tests)
     noise : encoder and current noise on (default) or off
+    payload_off_for_calibration : a plant's foot payload is taken off while an axis
+        calibrates and put back afterwards, as it must be on the bench: the encoder offset
+        scan at ``calibration_current`` cannot carry a loaded leg and fails the CPR check.
+        False keeps it on (the device's failure, for tests).
     """
 
     def __init__(self, plant: PlantParams | str = "default", config: OdriveConfig | str = "thesis",
                  seed: int = 0, realtime: bool = False, firmware: str = "0.5.6",
-                 disconnect_after: int | None = None, noise: bool = True):
+                 disconnect_after: int | None = None, noise: bool = True,
+                 payload_off_for_calibration: bool = True):
         if not isinstance(firmware, str) or firmware not in FIRMWARES:
             hint = (" (an ODrive v3.6 has no 0.6 firmware: 0.6.x is for ODrive Pro, S1 and Micro)"
                     if str(firmware).startswith("0.6") else "")
             raise ValueError(f"firmware must be one of {FIRMWARES}, got {firmware!r}{hint}")
         self.boot_count = 0
         self.twin = T.Twin(plant, config, batch=1, seed=seed, noise=noise)
+        self.payload_off_for_calibration = bool(payload_off_for_calibration)
         self.firmware = firmware
         self.fw_revision = int(firmware.split(".")[2])
         self.realtime = bool(realtime)
@@ -447,6 +453,11 @@ class VirtualODrive:
                 self._consume_request(a, ax["pending"][0])
             while ax["phase_end"] is not None and now >= ax["phase_end"]:
                 self._calibration_step(a)
+        if self.payload_off_for_calibration and self.twin.plant.payload_mass > 0:
+            calibrating = any(ax["state"] in (AXIS_STATE_MOTOR_CALIBRATION, AXIS_STATE_ENCODER_OFFSET_CALIBRATION)
+                              for ax in self._axis)
+            if calibrating == self.twin.payload_mounted:
+                self.twin.mount_payload(not calibrating)
         # the trajectory's end drops the axis into position control (controller.cpp:255-262)
         for a, ax in enumerate(self._axis):
             if st.AI[0, a, T.I_MODE] == T.MODE_POSITION and ax["state"] == AXIS_STATE_CLOSED_LOOP_CONTROL:

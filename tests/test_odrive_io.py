@@ -359,3 +359,26 @@ def test_live_view_hook_keeps_the_requested_rate_on_the_realtime_twin(dev):
     run = io.torque_loop(dev, lambda t, q1, q2: (0.0, 0.0), 0.2, period=0.005, on_sample=samples.append)
     assert len(samples) == len(run.t) and samples[0]["iq"] is not None
     assert np.median(np.diff(run.t)) == pytest.approx(0.005, rel=0.1)
+
+
+def test_a_loaded_leg_is_calibrated_with_its_payload_off():
+    """A payload on the foot: the encoder offset scan at calibration_current (encoder.cpp:
+    329-461, checked to 2 % of cpr) cannot carry the loaded leg and fails the CPR check, as
+    it would on the device; the bench's procedure (payload off while calibrating, the
+    twin's default) calibrates, and the steps afterwards carry the payload."""
+    from leglib.params import load_plant
+    loaded = load_plant("default", payload_mass=0.5)
+    d = io.connect("virtual", seed=31, plant=loaded, payload_off_for_calibration=False)
+    io.apply_configuration(d)
+    with pytest.raises(io.ExperimentError, match="calibration failed"):
+        io.calibrate(d)
+    d = io.connect("virtual", seed=32, plant=loaded)
+    io.apply_configuration(d)
+    io.calibrate(d)
+    assert d.sim.twin.payload_mounted and d.describe()["twin_plant_values"]["payload_mass"] == 0.5
+    light = io.connect("virtual", seed=34)
+    io.apply_configuration(light)
+    io.calibrate(light)
+    g = (40.0, 0.05, 0.02)
+    y_loaded, y_light = io.step_response(d, *g).y, io.step_response(light, *g).y
+    assert np.max(np.abs(y_loaded - y_light)) > 1e-3   # the payload changes the response (m)
