@@ -94,17 +94,24 @@ def _model(t, zeta, wn, gain, offset, delay):
     return offset + gain * _unit_step(t - delay, zeta, wn)
 
 
-def _validate(t, y):
+def _series(t, y, min_samples: int):
+    """``t``, ``y`` as float arrays, checked: 1-D, equal length, at least ``min_samples``,
+    finite, time strictly increasing."""
     t = np.asarray(t, dtype=float)
     y = np.asarray(y, dtype=float)
     if t.ndim != 1 or y.shape != t.shape:
         raise IdentificationError(f"t and y must be 1-D arrays of equal length, got {t.shape} and {y.shape}")
-    if t.size < 20:
-        raise IdentificationError(f"response too short: {t.size} samples (need at least 20)")
+    if t.size < min_samples:
+        raise IdentificationError(f"response too short: {t.size} samples (need at least {min_samples})")
     if not (np.all(np.isfinite(t)) and np.all(np.isfinite(y))):
         raise IdentificationError("response contains NaN or infinite values")
     if np.any(np.diff(t) <= 0):
         raise IdentificationError("time must increase strictly")
+    return t, y
+
+
+def _validate(t, y):
+    t, y = _series(t, y, 20)
     n = t.size
     head = y[: max(3, n // 50)]
     tail = y[-max(5, n // 5):]
@@ -261,16 +268,7 @@ def matlab_findpeaks(x) -> np.ndarray:
 
 
 def _thesis_reading(t, y) -> ThesisReading:
-    t = np.asarray(t, dtype=float)
-    y = np.asarray(y, dtype=float)
-    if t.ndim != 1 or y.shape != t.shape:
-        raise IdentificationError(f"t and y must be 1-D arrays of equal length, got {t.shape} and {y.shape}")
-    if t.size < 3:
-        raise IdentificationError(f"response too short: {t.size} samples (need at least 3)")
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(y))):
-        raise IdentificationError("response contains NaN or infinite values")
-    if np.any(np.diff(t) <= 0):
-        raise IdentificationError("time must increase strictly")
+    t, y = _series(t, y, 3)
     inv = matlab_smooth(-y)
     i = matlab_findpeaks(inv)
     pks, locs = inv[i], t[i]
