@@ -25,6 +25,29 @@ def motor_side_inertia(joint_inertia: float, gear_ratio: float) -> float:
     return 2 * math.pi * joint_inertia / gear_ratio ** 2
 
 
+def axis_closed_loop_matrices(inertia_turns: float, torque_constant: float, pos_gain: float,
+                              vel_gain: float, vel_integrator_gain: float, current_bandwidth: float = 1000.0,
+                              encoder_bandwidth: float = 1000.0,
+                              viscous: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(A, B, C) of :func:`axis_closed_loop` as plain arrays (no python-control object:
+    cheap enough for an optimizer's inner loop)."""
+    J, kt = inertia_turns, torque_constant
+    kp_e, ki_e = pll_gains(encoder_bandwidth)
+    wc = current_bandwidth
+    Kp, Kv, Ki = pos_gain, vel_gain, vel_integrator_gain
+    A = np.array([
+        [0, 1, 0, 0, 0, 0],
+        [0, -viscous / J, kt / J, 0, 0, 0],
+        [0, 0, -wc, -wc * Kv * Kp / kt, -wc * Kv / kt, wc / kt],
+        [kp_e, 0, 0, -kp_e, 1, 0],
+        [ki_e, 0, 0, -ki_e, 0, 0],
+        [0, 0, 0, -Ki * Kp, -Ki, 0],
+    ], dtype=float)
+    B = np.array([[0], [0], [wc * Kv * Kp / kt], [0], [0], [Ki * Kp]], dtype=float)
+    C = np.array([[1, 0, 0, 0, 0, 0]], dtype=float)
+    return A, B, C
+
+
 def axis_closed_loop(inertia_turns: float, torque_constant: float, pos_gain: float,
                      vel_gain: float, vel_integrator_gain: float, current_bandwidth: float = 1000.0,
                      encoder_bandwidth: float = 1000.0, viscous: float = 0.0) -> control.StateSpace:
@@ -41,20 +64,8 @@ def axis_closed_loop(inertia_turns: float, torque_constant: float, pos_gain: flo
 
     States: position, velocity, Iq, PLL position, PLL velocity, velocity integrator torque.
     """
-    J, kt = inertia_turns, torque_constant
-    kp_e, ki_e = pll_gains(encoder_bandwidth)
-    wc = current_bandwidth
-    Kp, Kv, Ki = pos_gain, vel_gain, vel_integrator_gain
-    A = np.array([
-        [0, 1, 0, 0, 0, 0],
-        [0, -viscous / J, kt / J, 0, 0, 0],
-        [0, 0, -wc, -wc * Kv * Kp / kt, -wc * Kv / kt, wc / kt],
-        [kp_e, 0, 0, -kp_e, 1, 0],
-        [ki_e, 0, 0, -ki_e, 0, 0],
-        [0, 0, 0, -Ki * Kp, -Ki, 0],
-    ], dtype=float)
-    B = np.array([[0], [0], [wc * Kv * Kp / kt], [0], [0], [Ki * Kp]], dtype=float)
-    C = np.array([[1, 0, 0, 0, 0, 0]], dtype=float)
+    A, B, C = axis_closed_loop_matrices(inertia_turns, torque_constant, pos_gain, vel_gain, vel_integrator_gain,
+                                        current_bandwidth, encoder_bandwidth, viscous)
     return control.ss(A, B, C, [[0.0]], states=["pos", "vel", "iq", "pos_est", "vel_est", "integrator"],
                       inputs=["input_pos"], outputs=["pos"], name="odrive_axis")
 

@@ -700,3 +700,10 @@ def fitting_gains(count: int = 5, pos_range=(25.0, 50.0), vel_range=(0.03, 0.15)
     pos = np.linspace(*pos_range, count)
     vel = np.roll(np.linspace(*vel_range, count)[::-1], 1)
     return np.column_stack([pos, vel, np.full(count, vel_integrator_gain)])
+
+
+# ---------------------------------------------------------------------------------------
+# prescribed dynamics on any leg in a handful of experiments (leglib.autotune)
+# ---------------------------------------------------------------------------------------
+
+from .autotune import Design, design  # noqa: E402,F401  (gainmap.design is the documented entry point)
