@@ -14,7 +14,7 @@ HEADLESS := MPLBACKEND=Agg
 # JupyterLab refuses to start as root without --allow-root
 LAB_ROOT := $(shell [ "$$(id -u)" = 0 ] && echo --allow-root)
 
-.PHONY: run test venv sysdeps bench clean lab
+.PHONY: run test venv sysdeps bench robustness clean lab
 
 venv: $(STAMP)
 
@@ -50,6 +50,10 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(HEADLESS) $(BIN)/python -m benchmarks
+
+# every method on every twin plant (a few minutes) -> reports/robustness/
+robustness: $(STAMP)
+	$(HEADLESS) $(BIN)/python -m leglib robustness --out reports/robustness
 
 lab: $(STAMP)
 	$(BIN)/jupyter lab notebooks/ $(LAB_ROOT)

@@ -1,5 +1,6 @@
 """Command line: ``python -m leglib run`` executes every notebook into reports/;
-``python -m leglib batch SPEC [--scheduler tcp://...]`` runs notebooks over a grid."""
+``python -m leglib batch SPEC [--scheduler tcp://...]`` runs notebooks over a grid;
+``python -m leglib robustness`` writes the robustness table to reports/robustness/."""
 
 from __future__ import annotations
 
@@ -18,7 +19,24 @@ def main(argv: list[str] | None = None) -> int:
     batch.add_argument("--out", default="reports/batch", help="output root (default: reports/batch)")
     batch.add_argument("--scheduler", default=None, help="Dask scheduler address, e.g. tcp://host:8786")
     batch.add_argument("--workers", type=int, default=2, help="local processes (without --scheduler)")
+    rob = sub.add_parser("robustness", help="every method on every twin plant (leglib.robustness)")
+    rob.add_argument("--out", default="reports/robustness", help="output directory (default: reports/robustness)")
+    rob.add_argument("--plants", nargs="*", default=None, help="plant names (default: every shipped plant)")
+    rob.add_argument("--payload", type=float, default=0.0, help="foot payload [kg] (default 0)")
+    rob.add_argument("--quick", action="store_true", help="fewer targets, a shorter friction run")
     args = parser.parse_args(argv)
+    if args.command == "robustness":
+        from . import robustness
+        from .params import ParameterError
+        try:
+            table = robustness.run(args.plants, payload=args.payload, quick=args.quick)
+        except (ParameterError, FileNotFoundError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        md = robustness.write(table, args.out)
+        print(md.read_text())
+        print(f"wrote {md} and {md.with_suffix('.json')}")
+        return 0
     if args.command == "batch":
         from .batch import SpecError, batch_root, load_spec, run_batch
         try:

@@ -402,3 +402,47 @@ def show_animation(anim, figures_dir=None, name: str | None = None):
         save_animation(anim, Path(figures_dir) / f"{name}.gif")
     plt.close(anim.figure)
     return html
+
+
+def plot_design_path(design, ax=None):
+    """The experiments of one :func:`leglib.gainmap.design` in the (zeta, fn) plane: each
+    experiment's measured point, numbered, the model's prediction for it, and the target
+    with its tolerance box."""
+    ax = _ax(ax)
+    zt, ft = design.target
+    tol = design.tolerance
+    from matplotlib.patches import Rectangle
+    ax.add_patch(Rectangle((zt * (1 - tol), ft * (1 - tol)), 2 * tol * zt, 2 * tol * ft, color="tab:green",
+                               alpha=0.25, label=f"target ± {tol:.0%}"))
+    ax.plot([zt], [ft], "g+", ms=12)
+    pts = np.array([e.measured for e in design.experiments], float)
+    pred = np.array([e.predicted for e in design.experiments], float)
+    ax.plot(pts[:, 0], pts[:, 1], "o-", color="tab:blue", label="measured")
+    ax.plot(pred[:, 0], pred[:, 1], "x", color="tab:orange", label="model's prediction")
+    for i, (z, f) in enumerate(pts, 1):
+        if np.isfinite(z):
+            ax.annotate(str(i), (z, f), textcoords="offset points", xytext=(4, 4), fontsize=8)
+    ax.set_xlabel("zeta [-]")
+    ax.set_ylabel("fn [Hz]")
+    ax.legend(fontsize=8)
+    return ax
+
+
+def plot_design_study(rows, ax=None, limits=(0.05, 0.10)):
+    """|relative error| of zeta and fn of every design of
+    :func:`leglib.robustness.design_study`, grouped by plant and payload, with the median
+    and worst limits as lines."""
+    ax = _ax(ax)
+    groups = list(dict.fromkeys(f"{r.plant}\n{r.payload:g} kg" for r in rows))
+    for i, g in enumerate(groups):
+        rs = [r for r in rows if f"{r.plant}\n{r.payload:g} kg" == g]
+        ez = [100 * abs(r.error[0]) for r in rs]
+        ef = [100 * abs(r.error[1]) for r in rs]
+        ax.plot(np.full(len(ez), i - 0.12), ez, "o", color="tab:blue", label="zeta" if i == 0 else None)
+        ax.plot(np.full(len(ef), i + 0.12), ef, "s", color="tab:orange", label="fn" if i == 0 else None)
+    for lim, style, name in zip(limits, ("--", ":"), ("median limit", "worst limit")):
+        ax.axhline(100 * lim, color="k", ls=style, lw=1, label=f"{name} {lim:.0%}")
+    ax.set_xticks(range(len(groups)), groups, fontsize=8)
+    ax.set_ylabel("|measured / target - 1| [%]")
+    ax.legend(fontsize=8)
+    return ax
