@@ -310,7 +310,15 @@ class Table:
         return "\n".join(lines)
 
     def to_json(self) -> dict:
-        return {"payload": self.payload, "quick": self.quick, "targets": self.targets,
+        import datetime
+        import subprocess
+        try:
+            commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                                    cwd=Path(__file__).parent, timeout=10).stdout.strip() or None
+        except (OSError, subprocess.SubprocessError):
+            commit = None
+        return {"payload": self.payload, "quick": self.quick, "targets": self.targets, "commit": commit,
+                "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
                 "scores": {p: {m: vars(s) for m, s in row.items()} for p, row in self.scores.items()},
                 "degraded": self.degraded()}
 
@@ -424,3 +432,49 @@ def design_summary(rows) -> dict:
                     "max_experiments": int(max(r.experiments for r in rs)),
                     "reached": int(sum(r.design.reached for r in rs)), "targets": len(rs)}
     return out
+
+
+def parse_plants(text: str, name: str = "design_plants") -> list[str]:
+    """"all" (every shipped plant) or comma-separated plant names; an unknown name is an
+    error naming ``name`` and the known plants."""
+    from .params import plant_names
+    known = plant_names()
+    if not isinstance(text, str) or not text.strip():
+        raise ValueError(f"{name} must be 'all' or comma-separated plant names ({', '.join(known)}), got {text!r}")
+    if text.strip() == "all":
+        return list(known)
+    out = [p.strip() for p in text.split(",") if p.strip()]
+    bad = [p for p in out if p not in known]
+    if bad:
+        raise ValueError(f"{name}: unknown plant(s) {bad}; shipped plants: {', '.join(known)}")
+    return out
+
+
+def parse_payloads(text: str, name: str = "design_payloads", high: float = 5.0) -> list[float]:
+    """Comma-separated foot payloads [kg] in [0, ``high``]; errors name ``name``."""
+    try:
+        vals = [float(x) for x in str(text).split(",") if x.strip()]
+    except ValueError:
+        raise ValueError(f"{name} must be comma-separated payloads in kg, e.g. '0, 0.3', got {text!r}") from None
+    if not vals or not all(math.isfinite(v) and 0.0 <= v <= high for v in vals):
+        raise ValueError(f"{name}: payloads must be finite, in [0, {high:g}] kg, at least one; got {text!r}")
+    return vals
+
+
+def load_table(path) -> dict:
+    """A robustness table written by :func:`write` (``robustness.json``), with a clear error
+    when it is missing or not one."""
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"{p}: no robustness table; write one with `make robustness`")
+    try:
+        doc = json.loads(p.read_text())
+        doc["scores"], doc["payload"]
+    except (json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise ValueError(f"{p}: not a robustness table ({exc})") from None
+    return doc
+
+
+def table_from_json(doc: dict) -> Table:
+    scores = {p: {m: Score(**v) for m, v in row.items()} for p, row in doc["scores"].items()}
+    return Table(scores, doc.get("targets", {}), doc["payload"], doc.get("quick", False))
