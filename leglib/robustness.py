@@ -70,18 +70,11 @@ def _stats(errors) -> tuple[float, float]:
 
 
 def friction_truth(plant) -> dict:
-    """The friction values a Coulomb + viscous fit should find on ``plant`` (joint side):
-    viscous and Coulomb per joint; an asymmetric plant's Coulomb level is the mean of its two
-    directions, a LuGre plant's viscous is its sigma2."""
-    out = {}
-    for j in (1, 2):
-        c = getattr(plant, f"coulomb{j}")
-        pos, neg = getattr(plant, f"coulomb{j}_pos", None), getattr(plant, f"coulomb{j}_neg", None)
-        if pos is not None and neg is not None and (pos or neg):
-            c = 0.5 * (pos + neg)
-        out[f"coulomb{j}"] = float(c)
-        out[f"viscous{j}"] = float(getattr(plant, f"viscous{j}"))
-    return out
+    """The friction values a Coulomb + viscous fit should find on ``plant`` (joint side),
+    before any drift: viscous and Coulomb per joint. An asymmetric plant's Coulomb levels
+    are coulomb (1 +- coulomb_asymmetry), so their mean is its ``coulomb``; a LuGre plant's
+    viscous term is its ``viscous``."""
+    return {f"{k}{j}": float(getattr(plant, f"{k}{j}")) for j in (1, 2) for k in ("coulomb", "viscous")}
 
 
 def ideal_sensor_plant(plant):
