@@ -624,7 +624,9 @@ class LegFrictionFit:
     ``aic`` (on ``n_eff``, the effective number of independent residuals, see
     :func:`effective_samples`), ``n`` residuals, ``ssr`` [rad^2]. Compare models with
     :func:`compare_friction_models`, which puts them on a common ``n_eff``. ``leg`` is the identified leg (scaled nominal leg with the
-    fitted friction); ``friction`` the kernels' friction vector.
+    fitted friction); ``friction`` the kernels' friction vector. ``converged`` is False when
+    the optimizer stopped at its evaluation budget (``max_nfev``) rather than at a minimum:
+    the numbers are then the best found, not an optimum, and should not be trusted as one.
     """
 
     model: str
@@ -640,6 +642,7 @@ class LegFrictionFit:
     friction: np.ndarray
     start: float
     v_smooth: float
+    converged: bool = True
 
     def simulate(self, run) -> np.ndarray:
         """Simulated (q1, q2) [rad] at the run's sample times from ``start`` on: (M, 2)."""
@@ -732,7 +735,7 @@ def _equation_error_start(run, leg, start, v_smooth):
 
 
 def fit_leg_friction(run, leg, model: str = "coulomb_viscous", cross: bool = False,
-                     start: float = 0.8, starts: int = 3) -> LegFrictionFit:
+                     start: float = 0.8, starts: int = 3, max_nfev: int | None = None) -> LegFrictionFit:
     """Identify joint friction (and the leg's inertia and mass scale) from a torque run.
 
     Output-error least squares between the measured joint angles and the exact five-bar
@@ -748,6 +751,8 @@ def fit_leg_friction(run, leg, model: str = "coulomb_viscous", cross: bool = Fal
     model : "coulomb_viscous" or "stribeck" (adds a Stribeck term per joint)
     cross : also fit the damping matrix's cross terms c12, c21
     start : fit from this time on [s] (after the fade-in, off the stops)
+    max_nfev : evaluation budget of each start (default: scipy's, 100 per parameter); a fit
+        stopped by it is marked ``converged=False``
 
     The Coulomb term is c tanh(v / v_smooth); its width v_smooth [rad/s] is fitted too (the
     residual tells it: assuming a width biases the viscous estimate). The simulation is driven by the torque the motors actually produced: each value held
@@ -803,7 +808,7 @@ def fit_leg_friction(run, leg, model: str = "coulomb_viscous", cross: bool = Fal
     for cand in candidates[:max(starts, 1)]:
         x0 = np.clip([cand.get(n, extra.get(n, 0.0)) for n in names], lo + 1e-9, hi - 1e-9)
         res = least_squares(resid, x0, bounds=(lo, hi), method="trf",
-                            x_scale=np.maximum(np.abs(x0), 1e-3), diff_step=1e-6)
+                            x_scale=np.maximum(np.abs(x0), 1e-3), diff_step=1e-6, max_nfev=max_nfev)
         if best is None or res.cost < best.cost:
             best = res
     d, lg, F = build(best.x)
@@ -818,7 +823,8 @@ def fit_leg_friction(run, leg, model: str = "coulomb_viscous", cross: bool = Fal
                           rms_deg=tuple(float(np.degrees(np.sqrt(np.mean(r[:, j] ** 2)))) for j in (0, 1)),
                           r2=tuple(_r2(qm[:, j], q[:, j]) for j in (0, 1)),
                           aic=_aic(ssr * effective_samples(r) / r.size, effective_samples(r), len(names)),
-                          n=int(r.size), n_eff=effective_samples(r), ssr=ssr, leg=fitted_leg, friction=F, start=start, v_smooth=d["v_smooth"])
+                          n=int(r.size), n_eff=effective_samples(r), ssr=ssr, leg=fitted_leg, friction=F, start=start, v_smooth=d["v_smooth"],
+                          converged=bool(best.status > 0))
 
 
 def choose_friction_model(plain: LegFrictionFit, stribeck: LegFrictionFit, min_effect: float = 0.2):

@@ -42,6 +42,8 @@ THESIS_TARGET = (0.24, 5.0)
 #: gains at which the further targets are measured on each leg (moderate, stable)
 TARGET_GAINS = ((30.0, 0.05, 0.01), (45.0, 0.09, 0.01), (25.0, 0.12, 0.01), (60.0, 0.06, 0.01))
 METHODS = ("friction", "second order", "state feedback: playback", "state feedback: live", "map", "model", "design")
+#: evaluation budget of the friction fit (a plant it cannot describe can keep it searching for minutes)
+FRICTION_NFEV = 200
 #: a method "degrades" on a plant when its error there exceeds this and twice its default-plant error
 DEGRADED = 0.05
 
@@ -65,7 +67,7 @@ def _rel(a, b) -> float:
 
 
 def _stats(errors) -> tuple[float, float]:
-    e = np.abs(np.asarray([x for x in errors if np.isfinite(x)], float))
+    e = np.abs(np.asarray([x for x in errors if isinstance(x, float) and not math.isnan(x)], float))
     return (float(np.median(e)), float(np.max(e))) if e.size else (math.nan, math.nan)
 
 
@@ -164,9 +166,11 @@ def evaluate(plant_name: str, payload: float = 0.0, seed: int = 70, quick: bool 
             t0 = time.perf_counter()
             say(f"{plant_name}: friction")
             run = io.friction_experiment(dev, duration=5.0 if quick else 8.0)
-            fit = identify.fit_leg_friction(run, leg, start=0.8, starts=1)
+            fit = identify.fit_leg_friction(run, leg, start=0.8, starts=1, max_nfev=FRICTION_NFEV)
             errs = {k: _rel(fit.params[k], v) for k, v in truth.items()}
-            out["friction"] = Score(*_stats(errs.values()), experiments=1, detail=errs,
+            out["friction"] = Score(*_stats(errs.values()), experiments=1,
+                                    detail={**errs, "rms_deg": fit.rms_deg, "converged": fit.converged},
+                                    note="" if fit.converged else f"fit stopped at {FRICTION_NFEV} evaluations",
                                     seconds=time.perf_counter() - t0)
             io.return_to_rest(dev)
         if "second order" in methods:
