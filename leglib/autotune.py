@@ -237,6 +237,16 @@ class Experiment:
     def measured(self) -> tuple:
         return (self.result.zeta, self.result.fn) if self.ok else (math.nan, math.nan)
 
+    @property
+    def uncertainty(self) -> tuple:
+        """Standard errors (zeta, fn [Hz]) of the measured values
+        (:func:`leglib.identify.standard_errors`); NaN when the step was not identified."""
+        if not self.ok or self.result.fit is None:
+            return (math.nan, math.nan)
+        from .identify import standard_errors
+        se = standard_errors(self.result.fit, self.response.t, self.response.y)
+        return (se["zeta"], se["fn"])
+
 
 @dataclass
 class Design:
@@ -244,7 +254,7 @@ class Design:
 
     ``gains`` (pos_gain, vel_gain, vel_integrator_gain) of the final check, ``predicted``
     the final model's (zeta, fn [Hz]) for them, ``measured`` the final check's identified
-    (zeta, fn), ``experiments`` every step run (the final check last), ``reached`` whether
+    (zeta, fn) and ``uncertainty`` their standard errors, ``experiments`` every step run (the final check last), ``reached`` whether
     the measured values are within ``tolerance`` of ``target``; ``model`` the final
     :class:`AxisModel`."""
 
@@ -257,6 +267,12 @@ class Design:
     tolerance: float
     model: AxisModel = field(repr=False)
     message: str = ""
+
+    @property
+    def uncertainty(self) -> tuple:
+        """Standard errors (zeta, fn [Hz]) of ``measured`` (the final check's fit)."""
+        final = next((e for e in reversed(self.experiments) if e.gains == self.gains), None)
+        return final.uncertainty if final is not None else (math.nan, math.nan)
 
     @property
     def error(self) -> tuple:
@@ -285,7 +301,8 @@ class Design:
         head = (f"target zeta {self.target[0]:.3g}, fn {self.target[1]:.3g} Hz: "
                 f"{'reached' if self.reached else 'NOT reached'} in {len(self.experiments)} experiments; "
                 f"gains ({', '.join(f'{g:.4g}' for g in self.gains)}), measured zeta {self.measured[0]:.3f} "
-                f"({ez:+.1%}), fn {self.measured[1]:.2f} Hz ({ef:+.1%})")
+                f"± {self.uncertainty[0]:.3f} ({ez:+.1%}), fn {self.measured[1]:.2f} ± {self.uncertainty[1]:.2f} Hz "
+                f"({ef:+.1%})")
         return head + (f"\n{self.message}" if self.message else "")
 
 

@@ -185,3 +185,27 @@ def test_fit_friction_one_direction_only():
     # data in both directions keeps both
     h = fit_friction(TF, TAU, velocity=_joint(c_pos=0.015, c_neg=0.035), eps=0.01)
     assert h.directions == "both" and h.coulomb == pytest.approx(0.025, rel=0.05)
+
+
+def test_standard_errors_match_the_spread_of_repeated_fits():
+    """Known answer: over repeated noisy steps, the reported standard error of zeta is the
+    spread of the fitted zetas (white noise), and does not understate it when the noise is
+    correlated in time (the effective-sample correction)."""
+    from leglib.identify import standard_errors
+    t = np.arange(750) * 0.002
+    rng = np.random.default_rng(5)
+    for correlated in (False, True):
+        zs, ses = [], []
+        for _ in range(80):
+            e = rng.normal(0, 2e-5, 800)
+            if correlated:
+                e = np.convolve(e, np.ones(20) / 20 ** 0.5, "same")
+            y = _model(t, 0.24, 31.4, 0.01, 0.0, 0.0) + e[:750]
+            f = second_order(t, y)
+            zs.append(f.zeta)
+            ses.append(standard_errors(f, t, y)["zeta"])
+        spread, se = np.std(zs), np.median(ses)
+        if correlated:
+            assert 0.8 * spread <= se <= 3 * spread
+        else:
+            assert 0.7 * spread <= se <= 1.4 * spread
