@@ -7,7 +7,10 @@ configured CPR, with noise), PLL position/velocity estimator, position P -> velo
 at the current-control bandwidth, current limit, torque constant), fault checks (overspeed,
 current-limit violation, watchdog); then the leg's mechanics (exact five-bar with gravity,
 the plant's viscous, Coulomb and Stribeck friction, the stop between the upper links) by
-semi-implicit Euler.
+semi-implicit Euler. A plant may add what the fitting models do not have, each effect off
+at zero (see :class:`leglib.params.PlantParams`): a compliant belt with backlash (the rotors
+their own inertias, sub-stepped when stiff, the encoders on the rotors), cogging torque, an
+encoder reading error, and LuGre, direction-dependent and drifting friction.
 
 A single experiment is a batch of one and a sweep a batch of many; both go through the same
 kernel, so they give identical numbers. :class:`Twin` holds the batch state and exposes
