@@ -365,6 +365,22 @@ def bench_liveview_sampling():
     return {"median_s": p, "min_s": p, "max_s": p, "runs": 3, "target_s": 0.002 * 1.01, **out}
 
 
+def bench_twin_unmodeled_effects():
+    """The thesis grid (400 steps) on the twin's kernel with every unmodeled effect on
+    (plant_bench: compliant belt, cogging, encoder error, LuGre) against the default plant
+    (all off); reported: the bench plant's median and the ratio of CPU medians."""
+    from leglib import odrive_io as io
+    from leglib import twin as T
+    grid = io.thesis_grid()
+    default, bench = T.Twin("default", seed=1), T.Twin("bench", seed=1)
+    off = timed(lambda: default.step_batch(grid), repeat=3)
+    on = timed(lambda: bench.step_batch(grid), repeat=3)
+    print(f"      effects off {off['median_s']:.3f} s, on {on['median_s']:.3f} s (cpu x "
+          f"{on['cpu_median_s'] / off['cpu_median_s']:.2f})")
+    return {**on, "off_median_s": off["median_s"], "off_cpu_median_s": off["cpu_median_s"],
+            "cpu_ratio": on["cpu_median_s"] / off["cpu_median_s"], "points": len(grid)}
+
+
 BENCHMARKS = {name[6:]: fn for name, fn in globals().items() if name.startswith("bench_")}
 
 

@@ -15,7 +15,8 @@ that exists. Every check runs once, at load; :meth:`LegParams.replace` and
 :meth:`LegParams.scaled` are programmatic and unchecked (identification builds legs with
 zero masses on purpose).
 
-Public entry points: :func:`load_leg`, :func:`load_motor`, :func:`load_odrive_config`.
+Public entry points: :func:`load_leg`, :func:`load_motor`, :func:`load_odrive_config`,
+:func:`load_plant` (and :func:`plant_names`, the shipped plants).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ _UNITS: dict[str, tuple[float, str]] = {
     "kg*m^2": (1.0, "kg*m^2"),
     "g*cm^2": (1e-7, "kg*m^2"),
     "N*m": (1.0, "N*m"),
+    "mN*m": (1e-3, "N*m"),
     "N*m*s/rad": (1.0, "N*m*s/rad"),
     "N*m/A": (1.0, "N*m/A"),
     "N*m/rad": (1.0, "N*m/rad"),
@@ -409,6 +411,13 @@ class PlantParams:
 
     The twin's true leg is the base leg set ``leg_set`` with inertias and masses scaled,
     a payload at the foot, and its own friction (viscous, Coulomb, Stribeck per joint).
+
+    Effects the fitting models do not have, each off at zero (``plant_default.toml`` has
+    them all off): a compliant belt drive with backlash ([belt]: the rotor, reflected
+    through the belt, is its own inertia, taken out of the joint's drive inertia), cogging
+    torque periodic in the motor angle ([cogging]), an encoder reading error periodic in
+    the motor angle ([encoder_error]), and in [friction] direction-dependent Coulomb levels,
+    LuGre presliding friction and a friction level that drifts down with joint travel.
     """
 
     leg_set: str = _p("leg", "", "string")
@@ -424,6 +433,26 @@ class PlantParams:
     stribeck2: float = _p("friction", "N*m", "nonnegative")
     stribeck_velocity: float = _p("friction", "rad/s")
     coulomb_smoothing: float = _p("friction", "rad/s")
+    coulomb_asymmetry: float = _p("friction", "-", "finite")
+    lugre_stiffness: float = _p("friction", "N*m/rad", "nonnegative")
+    lugre_damping: float = _p("friction", "N*m*s/rad", "nonnegative")
+    friction_drift: float = _p("friction", "-", "nonnegative")
+    drift_travel: float = _p("friction", "rad")
+    belt_stiffness: float = _p("belt", "N*m/rad", "nonnegative")
+    belt_damping: float = _p("belt", "N*m*s/rad", "nonnegative")
+    backlash: float = _p("belt", "rad", "nonnegative")
+    rotor_inertia: float = _p("belt", "kg*m^2")
+    cogging_periods: int = _p("cogging", "-", "count")
+    cogging1: float = _p("cogging", "N*m", "nonnegative")
+    cogging2: float = _p("cogging", "N*m", "nonnegative")
+    cogging3: float = _p("cogging", "N*m", "nonnegative")
+    cogging_phase1: float = _p("cogging", "rad", "finite")
+    cogging_phase2: float = _p("cogging", "rad", "finite")
+    cogging_phase3: float = _p("cogging", "rad", "finite")
+    encoder_error1: float = _p("encoder_error", "rad", "nonnegative")
+    encoder_error2: float = _p("encoder_error", "rad", "nonnegative")
+    encoder_phase1: float = _p("encoder_error", "rad", "finite")
+    encoder_phase2: float = _p("encoder_error", "rad", "finite")
     gap_min: float = _p("stop", "rad", "nonnegative")
     gap_max: float = _p("stop", "rad")
     stop_stiffness: float = _p("stop", "N*m/rad", "nonnegative")
@@ -438,6 +467,26 @@ class PlantParams:
     def replace(self, **changes) -> "PlantParams":
         """A copy with some fields changed, e.g. ``plant.replace(payload_mass=0.5)``."""
         return dataclasses.replace(self, **changes)
+
+    @property
+    def belt_compliant(self) -> bool:
+        """The belt drive is compliant (the rotor is its own inertia, coupled by the belt)."""
+        return self.belt_stiffness > 0.0
+
+    @property
+    def lugre(self) -> bool:
+        """Joint friction is the LuGre model (presliding bristles) instead of tanh Coulomb."""
+        return self.lugre_stiffness > 0.0
+
+    @property
+    def unmodeled(self) -> tuple[str, ...]:
+        """The effects beyond the fitting models' structure that are on in this plant."""
+        on = {"belt": self.belt_compliant, "backlash": self.backlash > 0.0,
+              "cogging": self.cogging1 + self.cogging2 + self.cogging3 > 0.0,
+              "encoder_error": self.encoder_error1 + self.encoder_error2 > 0.0,
+              "coulomb_asymmetry": self.coulomb_asymmetry != 0.0, "lugre": self.lugre,
+              "friction_drift": self.friction_drift > 0.0}
+        return tuple(k for k, v in on.items() if v)
 
     def base_leg(self) -> "LegParams":
         """The base leg parameter set named by ``leg_set``."""
@@ -462,10 +511,59 @@ def load_plant(name_or_path: str | Path = "default", **overrides) -> PlantParams
         raise ParameterError(f"{where}: field 'sensing.usb_jitter' is the relative spread of the latency "
                              f"and must lie in [0, 1] (a latency cannot be negative), got {plant.usb_jitter!r}")
     try:
-        plant.base_leg()
+        base = plant.base_leg()
     except ParameterError as exc:
         raise ParameterError(f"{where}: field 'leg.leg_set' = {plant.leg_set!r}: {exc}") from None
+    _check_unmodeled(plant, base)
     return plant
+
+
+# the encoder error's largest slope (1 + e'(angle) must stay positive: a reading that runs
+# backwards is not an encoder); amplitudes are kept well inside it
+_MAX_ENCODER_ERROR = 0.05   # rad of motor angle, per term (2.9 deg; the AS5047D is ~0.5 deg)
+
+
+def _check_unmodeled(plant: "PlantParams", base: "LegParams") -> None:
+    """Relations of the unmodeled-effect fields: ParameterError naming the file and field."""
+    where = plant.source_file
+    if not -1.0 < plant.coulomb_asymmetry < 1.0:
+        raise ParameterError(f"{where}: field 'friction.coulomb_asymmetry' must lie in (-1, 1) (the "
+                             f"Coulomb levels are coulomb * (1 +- asymmetry)), got {plant.coulomb_asymmetry!r}")
+    if not plant.friction_drift < 1.0:
+        raise ParameterError(f"{where}: field 'friction.friction_drift' is the fraction the friction "
+                             f"levels fall by with use and must lie in [0, 1), got {plant.friction_drift!r}")
+    if plant.lugre_damping > 0.0 and not plant.lugre:
+        raise ParameterError(f"{where}: field 'friction.lugre_damping' needs the LuGre model "
+                             f"('friction.lugre_stiffness' > 0; 0 is the tanh model)")
+    if plant.lugre and not (plant.coulomb1 > 0.0 and plant.coulomb2 > 0.0):
+        raise ParameterError(f"{where}: field 'friction.lugre_stiffness' > 0 (LuGre) needs a Coulomb level "
+                             f"on both joints ('friction.coulomb1', 'friction.coulomb2' > 0)")
+    for name in ("belt_damping", "backlash"):
+        if getattr(plant, name) > 0.0 and not plant.belt_compliant:
+            raise ParameterError(f"{where}: field 'belt.{name}' needs a compliant belt "
+                                 f"('belt.belt_stiffness' > 0; 0 is a rigid belt)")
+    if plant.backlash > math.radians(10.0):
+        raise ParameterError(f"{where}: field 'belt.backlash' = {math.degrees(plant.backlash):g} deg of "
+                             f"joint: a belt that loose skips teeth (at most 10 deg)")
+    if plant.belt_compliant:
+        reflected = plant.rotor_inertia * base.gear_ratio ** 2
+        for j in (1, 2):
+            jd = getattr(base, f"Jd{j}") * plant.inertia_scale
+            if not reflected < jd:
+                raise ParameterError(
+                    f"{where}: field 'belt.rotor_inertia' = {plant.rotor_inertia:.4g} kg*m^2: reflected "
+                    f"through the belt ({reflected:.4g} kg*m^2) it must be part of the joint's drive "
+                    f"inertia (Jd{j} * inertia_scale = {jd:.4g} kg*m^2), which it is taken out of")
+    for name in ("encoder_error1", "encoder_error2"):
+        if getattr(plant, name) > _MAX_ENCODER_ERROR:
+            raise ParameterError(f"{where}: field 'encoder_error.{name}' = {math.degrees(getattr(plant, name)):g} "
+                                 f"deg: at most {math.degrees(_MAX_ENCODER_ERROR):.3g} deg (a magnetic "
+                                 f"encoder's error is a fraction of a degree)")
+
+
+def plant_names() -> list[str]:
+    """The shipped plants: ``load_plant(name)`` loads ``data/params/plant_<name>.toml``."""
+    return sorted(p.stem[len("plant_"):] for p in PARAMS_DIR.glob("plant_*.toml"))
 
 
 def load_leg(name_or_path: str | Path = "thesis", **overrides) -> LegParams:

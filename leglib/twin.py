@@ -7,7 +7,10 @@ configured CPR, with noise), PLL position/velocity estimator, position P -> velo
 at the current-control bandwidth, current limit, torque constant), fault checks (overspeed,
 current-limit violation, watchdog); then the leg's mechanics (exact five-bar with gravity,
 the plant's viscous, Coulomb and Stribeck friction, the stop between the upper links) by
-semi-implicit Euler.
+semi-implicit Euler. A plant may add what the fitting models do not have, each effect off
+at zero (see :class:`leglib.params.PlantParams`): a compliant belt with backlash (the rotors
+their own inertias, sub-stepped when stiff, the encoders on the rotors), cogging torque, an
+encoder reading error, and LuGre, direction-dependent and drifting friction.
 
 A single experiment is a batch of one and a sweep a batch of many; both go through the same
 kernel, so they give identical numbers. :class:`Twin` holds the batch state and exposes
@@ -70,6 +73,20 @@ MOTOR_ERROR_SYSTEM_LEVEL = 0x1000000                # 0.5.2+: motors disarmed by
 ODRIVE_ERROR_DC_BUS_OVER_CURRENT = 0x4              # 0.5.2+: odrv.error
 ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT = 0x8
 CURRENT_LIM_MARGIN = 8.0  # A, firmware default motor.config.current_lim_margin
+# the leg's state X[b, k]: joints, time, then the unmodeled effects' state (see _run)
+X_Q1, X_DQ1, X_Q2, X_DQ2, X_T = range(5)
+X_PHI1, X_DPHI1, X_PHI2, X_DPHI2 = range(5, 9)   # rotor angles on the joint side (compliant belt)
+X_Z1, X_Z2 = 9, 10                               # LuGre bristle deflections [rad]
+X_TRAVEL1, X_TRAVEL2 = 11, 12                    # accumulated joint travel [rad] (friction drift)
+N_X = 13
+# plant parameters FR[b, k] beyond the joints' friction (k < 14; see _run): the unmodeled
+# effects, each off at zero
+(F_BELT_K, F_BELT_C, F_BACKLASH_HALF, F_JM, F_BELT_SUB, F_COG_ON, F_COG_PERIODS, F_COG_A1, F_COG_A2,
+ F_COG_A3, F_COG_P1, F_COG_P2, F_COG_P3, F_ENC_ON, F_ENC_A1, F_ENC_P1, F_ENC_A2, F_ENC_P2, F_FRIC_EXT,
+ F_LUGRE_S0, F_LUGRE_S1, F_ASYM, F_DRIFT, F_DRIFT_TRAVEL) = range(14, 38)
+N_FR = 38
+# a compliant belt is sub-stepped so that its mode advances at most this many radians a step
+BELT_PHASE_PER_STEP = 0.3
 # leglib's own abort codes (ABORT[b, 1])
 ABORT_NONE, ABORT_POSITION_ERROR, ABORT_NONFINITE, ABORT_OSCILLATION = 0, 1, 2, 3
 OSC_HALF_CYCLES = 3  # consecutive non-decaying half-cycles that count as unstable
@@ -142,6 +159,128 @@ def oscillation_update(st, err, min_amp):
 
 
 # ---------------------------------------------------------------------------------------
+# the plant's unmodeled effects (plant_*.toml [belt], [cogging], [encoder_error], [friction]);
+# each is called from the kernel only when its plant parameters switch it on
+# ---------------------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def _motor_angle(X, FR, b, j):
+    """The angle the motor of joint ``j`` is at, on the joint side [rad]: the rotor's with a
+    compliant belt, the joint's with a rigid one."""
+    if FR[b, F_BELT_K] > 0.0:
+        return X[b, X_PHI1 + 2 * j]
+    return X[b, 2 * j]
+
+
+@njit(cache=True, inline="always")
+def _encoder_error(FR, b, turns):
+    """Reading error [turn] of a magnetic encoder at rotor angle ``turns``: once per turn
+    (magnet eccentricity, offsets) and twice per turn (amplitude mismatch of the sine and
+    cosine channels)."""
+    th = 2.0 * math.pi * turns
+    err = FR[b, F_ENC_A1] * math.sin(th + FR[b, F_ENC_P1]) + FR[b, F_ENC_A2] * math.sin(2.0 * th + FR[b, F_ENC_P2])
+    return err / (2.0 * math.pi)
+
+
+@njit(cache=True, inline="always")
+def _cogging_torque(FR, b, turns):
+    """Cogging torque on the rotor [N*m, motor side] at rotor angle ``turns``: harmonics 1-3
+    of the cogging period (FR[b, F_COG_PERIODS] periods per turn). A sum of sines: it has a
+    potential, so it stores no energy over a period."""
+    th = 2.0 * math.pi * FR[b, F_COG_PERIODS] * turns
+    return (FR[b, F_COG_A1] * math.sin(th + FR[b, F_COG_P1]) + FR[b, F_COG_A2] * math.sin(2.0 * th + FR[b, F_COG_P2])
+            + FR[b, F_COG_A3] * math.sin(3.0 * th + FR[b, F_COG_P3]))
+
+
+@njit(cache=True, inline="always")
+def _add_cogging(b, X, FR, DRV, tau):
+    """Add each motor's cogging torque, reflected to the joint side, to ``tau`` (the motor
+    torques): it acts in every axis state, IDLE included."""
+    for j in range(2):
+        turns = DRV[2] * (_motor_angle(X, FR, b, j) - DRV[3 + j]) * DRV[0] / (2.0 * math.pi)
+        tau[j] += DRV[2] * DRV[0] * _cogging_torque(FR, b, turns)
+
+
+@njit(cache=True, inline="always")
+def _belt_torque(FR, b, stretch, rate):
+    """Torque the belt puts on the joint [N*m]: stiffness times the stretch ``stretch`` =
+    phi - q less the backlash dead zone, plus damping times ``rate`` = dphi - dq."""
+    h = FR[b, F_BACKLASH_HALF]
+    if stretch > h:
+        stretch -= h
+    elif stretch < -h:
+        stretch += h
+    else:
+        stretch = 0.0
+    return FR[b, F_BELT_K] * stretch + FR[b, F_BELT_C] * rate
+
+
+@njit(cache=True, inline="always")
+def _belt_split(b, X, FR, tau, tm):
+    """Compliant belt: the motor torques ``tau`` (joint side) move to the rotors (``tm``);
+    the joints get the belt's torques instead."""
+    for j in range(2):
+        tm[j] = tau[j]
+        tau[j] = _belt_torque(FR, b, X[b, X_PHI1 + 2 * j] - X[b, 2 * j], X[b, X_DPHI1 + 2 * j] - X[b, 2 * j + 1])
+
+
+@njit(cache=True, inline="always")
+def _belt_advance(b, dt, X, FR, tm, tau, a1, a2, d11, d12, d22):
+    """One tick of joints and rotors coupled by the belt, semi-implicit Euler in
+    FR[b, F_BELT_SUB] sub-steps: ``a1``, ``a2`` are the joints' accelerations with the belt
+    torques ``tau`` of the tick's start; the rest of them (gravity, friction, stops) is held
+    over the tick while the belt coupling is re-evaluated every sub-step."""
+    n = int(FR[b, F_BELT_SUB])
+    h = dt / n
+    jm = FR[b, F_JM]
+    det = d11 * d22 - d12 * d12
+    o1 = a1 - (d22 * tau[0] - d12 * tau[1]) / det
+    o2 = a2 - (-d12 * tau[0] + d11 * tau[1]) / det
+    q1, dq1, q2, dq2 = X[b, X_Q1], X[b, X_DQ1], X[b, X_Q2], X[b, X_DQ2]
+    p1, dp1, p2, dp2 = X[b, X_PHI1], X[b, X_DPHI1], X[b, X_PHI2], X[b, X_DPHI2]
+    for _ in range(n):
+        t1 = _belt_torque(FR, b, p1 - q1, dp1 - dq1)
+        t2 = _belt_torque(FR, b, p2 - q2, dp2 - dq2)
+        dq1 += (o1 + (d22 * t1 - d12 * t2) / det) * h
+        dq2 += (o2 + (-d12 * t1 + d11 * t2) / det) * h
+        dp1 += (tm[0] - t1) / jm * h
+        dp2 += (tm[1] - t2) / jm * h
+        q1 += dq1 * h
+        q2 += dq2 * h
+        p1 += dp1 * h
+        p2 += dp2 * h
+    X[b, X_Q1], X[b, X_DQ1], X[b, X_Q2], X[b, X_DQ2] = q1, dq1, q2, dq2
+    X[b, X_PHI1], X[b, X_DPHI1], X[b, X_PHI2], X[b, X_DPHI2] = p1, dp1, p2, dp2
+    X[b, X_T] += dt
+
+
+@njit(cache=True, inline="always")
+def _joint_friction(b, dt, X, FR, j, v):
+    """Friction torque [N*m] on joint ``j`` at velocity ``v`` beyond the tanh model: Coulomb
+    levels coulomb * (1 +- asymmetry) by direction, all levels scaled by the drift factor
+    1 - drift (1 - exp(-travel / drift_travel)), and with LuGre (sigma0 > 0) presliding
+    bristles z: dz/dt = v - sigma0 |v| z / g(v), F = sigma0 z + sigma1 dz/dt + viscous v,
+    integrated exactly for v constant over the tick (unconditionally stable). Updates the
+    joint's z and travel in X."""
+    travel = X[b, X_TRAVEL1 + j]
+    s = 1.0 - FR[b, F_DRIFT] * (1.0 - math.exp(-travel / FR[b, F_DRIFT_TRAVEL]))
+    X[b, X_TRAVEL1 + j] = travel + abs(v) * dt
+    sgn = 1.0 if v > 0.0 else -1.0
+    g = s * (1.0 + sgn * FR[b, F_ASYM]) * (FR[b, 2 + j] + FR[b, 4 + j] * math.exp(-(v / FR[b, 6]) ** 2))
+    visc = s * FR[b, j] * v
+    s0 = FR[b, F_LUGRE_S0]
+    if s0 <= 0.0:
+        return visc + g * math.tanh(v / FR[b, 7])
+    z = X[b, X_Z1 + j]
+    z_new = z
+    if v != 0.0:
+        z_ss = sgn * g / s0
+        z_new = z_ss + (z - z_ss) * math.exp(-s0 * abs(v) * dt / g)
+    X[b, X_Z1 + j] = z_new
+    return s0 * z_new + FR[b, F_LUGRE_S1] * (z_new - z) / dt + visc
+
+
+# ---------------------------------------------------------------------------------------
 # the kernel
 # ---------------------------------------------------------------------------------------
 
@@ -150,9 +289,12 @@ def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
          rec_offset):
     """Advance every leg of the batch by ``n_ticks`` ticks of ``dt`` seconds.
 
-    X[b] = (q1, dq1, q2, dq2, t); AS, AI, C per axis (see the S_, I_, C_ indices);
+    X[b] = (q1, dq1, q2, dq2, t, phi1, dphi1, phi2, dphi2, z1, z2, travel1, travel2) (the
+    X_ indices: rotor angles on the joint side with a compliant belt, LuGre bristles,
+    accumulated joint travel); AS, AI, C per axis (see the S_, I_, C_ indices);
     P[b] the true leg's parameter vector; FR[b] = (visc1, visc2, coul1, coul2, strib1,
-    strib2, v_stribeck, v_smooth, gap_min, k_stop, c_stop, J1, J2, gap_max); MECH[b] 0 five-bar,
+    strib2, v_stribeck, v_smooth, gap_min, k_stop, c_stop, J1, J2, gap_max, then the
+    unmodeled effects' parameters, the F_ indices, each off at zero); MECH[b] 0 five-bar,
     1 independent inertias; DRV = (gear_ratio, cpr, direction, q_rest1, q_rest2,
     joint_of_axis0, encoder_noise, current_noise, true torque constant, quantize, true pole
     pairs, phase resistance [ohm]); TT[b, i, axis] a torque table applied
@@ -190,6 +332,7 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
     n_rec = REC.shape[1]
     two_pi = 2.0 * math.pi
     tau = np.zeros(2)
+    tm = np.zeros(2)   # the motor torques on the rotors (compliant belt)
     for k in range(n_ticks):
         if ABORT[b, 1] == ABORT_NONFINITE:
             break
@@ -220,8 +363,12 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
         for a in range(2):
             j = j_of_a0 if a == 0 else 1 - j_of_a0
             q = X[b, 2 * j]
+            if FR[b, F_BELT_K] > 0.0:       # compliant belt: the encoder is on the rotor
+                q = X[b, X_PHI1 + 2 * j]
             turns = dirn * (q - DRV[3 + j]) * N / two_pi
             raw = turns * cpr + enc_noise * _normal(RNG, b)
+            if FR[b, F_ENC_ON] > 0.0:       # the encoder's reading error (plant [encoder_error])
+                raw += cpr * _encoder_error(FR, b, turns)
             off = C[b, a, C_COUNT_OFFSET]
             counts = (math.floor(raw + 0.5) if DRV[9] > 0.0 else raw) + off
             AI[b, a, I_COUNTS] = np.int64(math.floor(raw + 0.5) + off)
@@ -426,6 +573,10 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
                 ABORT[b, 0] = k
                 ABORT[b, 1] = abort_code
         # ---- mechanics
+        if FR[b, F_COG_ON] > 0.0:           # cogging on the rotors (plant [cogging])
+            _add_cogging(b, X, FR, DRV, tau)
+        if FR[b, F_BELT_K] > 0.0:           # compliant belt: the joints get the belt's torques
+            _belt_split(b, X, FR, tau, tm)
         q1, dq1, q2, dq2 = X[b, 0], X[b, 1], X[b, 2], X[b, 3]
         if MECH[b] == 0:
             r5 = _fivebar_dynamics(q1, q2, dq1, dq2, P[b])
@@ -434,6 +585,9 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
             d11, d12, d22, b1, b2 = FR[b, 11], 0.0, FR[b, 12], 0.0, 0.0
         f1 = FR[b, 0] * dq1 + (FR[b, 2] + FR[b, 4] * math.exp(-(dq1 / FR[b, 6]) ** 2)) * math.tanh(dq1 / FR[b, 7])
         f2 = FR[b, 1] * dq2 + (FR[b, 3] + FR[b, 5] * math.exp(-(dq2 / FR[b, 6]) ** 2)) * math.tanh(dq2 / FR[b, 7])
+        if FR[b, F_FRIC_EXT] > 0.0:         # asymmetric, LuGre, drifting friction (plant [friction])
+            f1 = _joint_friction(b, dt, X, FR, 0, dq1)
+            f2 = _joint_friction(b, dt, X, FR, 1, dq2)
         t1 = tau[0] - b1 - f1
         t2 = tau[1] - b2 - f2
         if MECH[b] == 0:
@@ -457,6 +611,9 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
             for a in range(2):
                 AI[b, a, I_MODE] = MODE_IDLE
             break
+        if FR[b, F_BELT_K] > 0.0:           # compliant belt: joints and rotors advance together
+            _belt_advance(b, dt, X, FR, tm, tau, a1, a2, d11, d12, d22)
+            continue
         dq1 += a1 * dt
         dq2 += a2 * dt
         X[b, 0] = q1 + dq1 * dt
@@ -472,10 +629,58 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
 
 def true_leg(plant: PlantParams) -> LegParams:
     """The twin's hidden leg: the base set scaled (inertia, mass), the payload on the foot,
-    and the plant's own viscous and Coulomb friction (Stribeck is added in the kernel)."""
+    and the plant's own viscous and Coulomb friction (Stribeck is added in the kernel).
+    With a compliant belt the rotor (reflected through the belt, J_rotor N^2) is its own
+    inertia in the kernel and is taken out of the drive inertias Jd1, Jd2: the total stays."""
     leg = plant.base_leg().scaled(plant.inertia_scale, plant.mass_scale, plant.payload_mass)
-    return leg.replace(c11=plant.viscous1, c12=0.0, c21=0.0, c22=plant.viscous2,
-                       coulomb1=plant.coulomb1, coulomb2=plant.coulomb2)
+    leg = leg.replace(c11=plant.viscous1, c12=0.0, c21=0.0, c22=plant.viscous2,
+                      coulomb1=plant.coulomb1, coulomb2=plant.coulomb2)
+    if plant.belt_compliant:
+        jm = reflected_rotor_inertia(plant, leg)
+        leg = leg.replace(Jd1=leg.Jd1 - jm, Jd2=leg.Jd2 - jm)
+    return leg
+
+
+def reflected_rotor_inertia(plant: PlantParams, leg: LegParams | None = None) -> float:
+    """The rotor and its pulley seen at the joint through the belt, J_rotor N^2 [kg*m^2]."""
+    leg = plant.base_leg() if leg is None else leg
+    return plant.rotor_inertia * leg.gear_ratio ** 2
+
+
+def effect_parameters(plant: PlantParams, leg: LegParams, dt: float) -> np.ndarray:
+    """The kernel's parameters of the plant's unmodeled effects (FR[b, 14:], the F_
+    indices), all zero where an effect is off. A compliant belt gets the number of
+    sub-steps that keeps its mode (rotor against the lightest joint inertia at rest) and
+    its damping well inside semi-implicit Euler's stable range at ``dt``."""
+    from .model import mass_matrix
+    out = np.zeros(N_FR - 14)
+    k = lambda i: i - 14   # noqa: E731 - FR index -> position in this vector
+    if plant.belt_compliant:
+        jm = reflected_rotor_inertia(plant, leg)
+        if plant.mechanism == "fivebar":
+            j_min = float(np.min(np.linalg.eigvalsh(mass_matrix(leg, *leg.q0))))
+        else:
+            j_min = min(leg.I1 + leg.Jd1 + leg.m1 * leg.lc1 ** 2, leg.I2 + leg.Jd2 + leg.m2 * leg.lc2 ** 2)
+        inv = 1.0 / jm + 1.0 / j_min
+        w = math.sqrt(plant.belt_stiffness * inv)
+        sub = max(1, math.ceil(w * dt / BELT_PHASE_PER_STEP), math.ceil(plant.belt_damping * inv * dt / 0.5))
+        out[k(F_BELT_K)], out[k(F_BELT_C)] = plant.belt_stiffness, plant.belt_damping
+        out[k(F_BACKLASH_HALF)], out[k(F_JM)], out[k(F_BELT_SUB)] = 0.5 * plant.backlash, jm, sub
+    amps = (plant.cogging1, plant.cogging2, plant.cogging3)
+    if sum(amps) > 0.0:
+        out[k(F_COG_ON)], out[k(F_COG_PERIODS)] = 1.0, plant.cogging_periods
+        out[k(F_COG_A1):k(F_COG_A3) + 1] = amps
+        out[k(F_COG_P1):k(F_COG_P3) + 1] = plant.cogging_phase1, plant.cogging_phase2, plant.cogging_phase3
+    if plant.encoder_error1 + plant.encoder_error2 > 0.0:
+        out[k(F_ENC_ON)] = 1.0
+        out[k(F_ENC_A1)], out[k(F_ENC_P1)] = plant.encoder_error1, plant.encoder_phase1
+        out[k(F_ENC_A2)], out[k(F_ENC_P2)] = plant.encoder_error2, plant.encoder_phase2
+    if plant.lugre or plant.coulomb_asymmetry != 0.0 or plant.friction_drift > 0.0:
+        out[k(F_FRIC_EXT)] = 1.0
+        out[k(F_LUGRE_S0)], out[k(F_LUGRE_S1)] = plant.lugre_stiffness, plant.lugre_damping
+        out[k(F_ASYM)], out[k(F_DRIFT)] = plant.coulomb_asymmetry, plant.friction_drift
+        out[k(F_DRIFT_TRAVEL)] = plant.drift_travel
+    return out
 
 
 def seeds_for(seed: int, keys) -> np.ndarray:
@@ -544,7 +749,7 @@ class Twin:
         p = self.plant
         self.FR = np.array([p.viscous1, p.viscous2, p.coulomb1, p.coulomb2, p.stribeck1, p.stribeck2,
                             p.stribeck_velocity, p.coulomb_smoothing, p.gap_min, p.stop_stiffness,
-                            p.stop_damping, J1, J2, p.gap_max])
+                            p.stop_damping, J1, J2, p.gap_max, *effect_parameters(p, leg, self.dt)])
         self.mech = 0 if p.mechanism == "fivebar" else 1
         ax = self.axes
         motor = self.motor
@@ -566,8 +771,9 @@ class Twin:
 
     # -- state -----------------------------------------------------------------------
     def _initial_state(self, batch: int) -> TwinState:
-        X = np.zeros((batch, 5))
-        X[:, 0], X[:, 2] = self.axes.q_rest
+        X = np.zeros((batch, N_X))
+        X[:, X_Q1], X[:, X_Q2] = self.axes.q_rest
+        X[:, X_PHI1], X[:, X_PHI2] = self.axes.q_rest
         C = np.zeros((batch, 2, N_CFG))
         cfg = self.config
         C[:, :, C_POS_GAIN] = 20.0       # firmware defaults
@@ -601,14 +807,29 @@ class Twin:
         if not hasattr(self, "_rest"):
             st = self._initial_state(1)
             self.run(st, seconds=2.0)
-            st.X[:, 1] = 0.0
-            st.X[:, 3] = 0.0
+            st.X[:, [X_DQ1, X_DQ2, X_DPHI1, X_DPHI2]] = 0.0
             st.X[:, 4] = 0.0
             # encoder and estimator agree with the settled leg
             self.run(st, ticks=int(0.05 / self.dt))
             st.X[:, 4] = 0.0
+            st.X[:, [X_TRAVEL1, X_TRAVEL2]] = 0.0   # a leg fresh from assembly: no use yet
             self._rest = st
         return self._rest.copy()
+
+    def motor_angle(self, st: TwinState, joint: int) -> np.ndarray:
+        """Where joint ``joint``'s motor is, on the joint side [rad] (B,): the rotor's angle
+        with a compliant belt, the joint's with a rigid one."""
+        col = (X_PHI1 if self.plant.belt_compliant else X_Q1) + 2 * joint
+        return st.X[:, col].copy()
+
+    def encoder_turns(self, st: TwinState, joint: int) -> np.ndarray:
+        """What joint ``joint``'s encoder reads [motor turn from rest] (B,), without noise
+        and quantization: the rotor's turns plus the plant's encoder error."""
+        turns = self.axes.motor_turns(self.motor_angle(st, joint), joint)
+        fr = self.FR[None, :]
+        if fr[0, F_ENC_ON] > 0.0:
+            turns = turns + np.array([_encoder_error(fr, 0, float(t)) for t in np.atleast_1d(turns)])
+        return turns
 
     # -- running ---------------------------------------------------------------------
     def run(self, st: TwinState, seconds: float | None = None, ticks: int | None = None,
@@ -646,7 +867,11 @@ class Twin:
         vel_limit : velocity limit during the step [turn/s] (default: config.step_vel_limit)
         abort_error_turns : abort (both axes IDLE) when |input_pos - pos_estimate| exceeds it
             (default 2 * |step|)
-        start : the state every leg starts from (default: at rest on its stop)
+        start : the state every leg starts from (default: at rest on its stop). Every
+            point starts from this same state, its friction drift (accumulated joint travel,
+            X[:, X_TRAVEL1:]) included: a batch's points do not wear the leg for each other,
+            whereas a device (:class:`leglib.virtual_odrive.VirtualODrive`) carries its
+            drift from experiment to experiment.
 
         Returns
         -------

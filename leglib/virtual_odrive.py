@@ -317,7 +317,7 @@ class VirtualODrive:
         for a in range(2):
             j = self.twin.axes.joint_of_axis(a)
             ax_map = self.twin.axes
-            turns = float(ax_map.motor_turns(st.X[0, 2 * j], j))
+            turns = float(self.twin.encoder_turns(st, j)[0])
             raw = math.floor(turns * ax_map.cpr + 0.5)
             st.C[0, a, T.C_COUNT_OFFSET] = -raw
             st.AI[0, a, T.I_COUNTS] = 0
@@ -540,7 +540,7 @@ class VirtualODrive:
         """Motor turns where electrical angle 0 holds the rotor: the alignment nearest to
         where it is now (the kernel's frame)."""
         j = self.twin.axes.joint_of_axis(a)
-        turns = float(self.twin.axes.motor_turns(self.st.X[0, 2 * j], j))
+        turns = float(self.twin.axes.motor_turns(self.twin.motor_angle(self.st, j)[0], j))
         pp = self.twin.motor.pole_pairs
         off = self._magnet_offset[a] / pp
         return off + round((turns - off) * pp) / pp
@@ -961,8 +961,10 @@ class VirtualODrive:
         leg at rest, IDLE) with its configuration and encoder reference. Afterwards the
         device is IDLE with the leg back where it started (as if it had settled there) and
         virtual time advanced by the steps' duration plus a 2 s settling wait per step.
-        Counts as one transaction (for disconnect injection); the watchdog is taken as fed,
-        as the polling loop feeds it every sample.
+        The joint travel of the steps is added to the device's (a plant whose friction
+        drifts with use wears on), though every step starts from the same state. Counts as
+        one transaction (for disconnect injection); the watchdog is taken as fed, as the
+        polling loop feeds it every sample.
         """
         if self._handle_boot != self.boot_count:
             raise DeviceLostError("virtual ODrive: the board rebooted since this connection was made; reconnect")
@@ -983,6 +985,8 @@ class VirtualODrive:
         out = self.twin.step_batch(gains, start=start, **kwargs)
         # the firmware's error flags of the last step stay on the device, as on the real one
         final = out["final"]
+        wear = [T.X_TRAVEL1, T.X_TRAVEL2]
+        self.st.X[0, wear] += np.sum(final.X[:, wear] - start.X[0, wear], axis=0)
         self.st.AI[0, :, T.I_AXIS_ERR] |= final.AI[-1, :, T.I_AXIS_ERR]
         self.st.AI[0, :, T.I_CTRL_ERR] |= final.AI[-1, :, T.I_CTRL_ERR]
         self.st.AI[0, :, T.I_MOTOR_ERR] |= final.AI[-1, :, T.I_MOTOR_ERR]
