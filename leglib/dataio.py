@@ -254,7 +254,16 @@ def write_bytes_atomic(path: str | Path, data: bytes, overwrite: bool = False) -
 
 
 def _csv_bytes(data: np.ndarray) -> bytes:
-    return "".join(f"{a:.6f},{b:.6f},{c:.6f}\n" for a, b, c in data).encode("ascii")
+    """Rows of ``data`` as ``"%.6f,%.6f,...\\n"`` ASCII: compiled, or (for the values it
+    cannot format exactly: ties, huge, non-finite) one Python format of the whole table."""
+    from . import csvcodec  # numba: imported on first use
+
+    data = np.atleast_2d(np.asarray(data, dtype=float))
+    body = csvcodec.format_fixed6(data)
+    if body is None:
+        row = ",".join(["%.6f"] * data.shape[1]) + "\n"
+        body = ((row * data.shape[0]) % tuple(data.ravel().tolist())).encode("ascii")
+    return body
 
 
 def write_measurement(out_dir: str | Path, t, angle1_deg, angle2_deg, meta: dict,
@@ -305,9 +314,7 @@ def write_measurement(out_dir: str | Path, t, angle1_deg, angle2_deg, meta: dict
 
 def write_table(path: str | Path, data) -> Path:
     """Write a numeric table as CSV atomically (never overwriting)."""
-    data = np.asarray(data, dtype=float)
-    body = "".join(",".join(f"{v:.6f}" for v in row) + "\n" for row in np.atleast_2d(data)).encode("ascii")
-    return write_bytes_atomic(path, body)
+    return write_bytes_atomic(path, _csv_bytes(data))
 
 
 # -- reading -----------------------------------------------------------------------------
@@ -411,11 +418,28 @@ def _parse_rows(path: Path, text: str, columns: int = 3, names: str = "",
     return np.array(rows)
 
 
+def _parse_csv(path: Path, raw: bytes, what: str, columns: int = 3, names: str = "",
+               increasing_first: bool = False, angle_columns=()) -> np.ndarray:
+    """:func:`_parse_rows` of the UTF-8 text ``raw``, the same numbers and the same errors.
+
+    Three-column files go through the compiled parser first (:func:`leglib.csvcodec.parse3`,
+    one pass over the bytes, bit for bit as ``float()``); whatever it does not accept --
+    a bad file, or one it cannot be sure of -- is decoded and parsed row by row here,
+    which reads it or raises the error naming file and line."""
+    if columns == 3 and tuple(angle_columns) in ((), (1, 2)):
+        from . import csvcodec  # numba: imported on first use
+
+        data = csvcodec.parse3(raw, MAX_LINE_CHARS, ANGLE_LIMIT_DEG if angle_columns else math.inf,
+                               increasing_first)
+        if data is not None:
+            return data
+    return _parse_rows(path, _decode(path, raw, what), columns, names, increasing_first, angle_columns)
+
+
 def read_table(path: str | Path, columns: int) -> np.ndarray:
     """Read a numeric CSV with ``columns`` columns; MeasurementError naming file and line."""
     path = Path(path)
-    text = _decode(path, _read_regular(path, MAX_CSV_BYTES, "file"), "file")
-    return _parse_rows(path, text, columns)
+    return _parse_csv(path, _read_regular(path, MAX_CSV_BYTES, "file"), "file", columns)
 
 
 def _json_default(o):
@@ -529,8 +553,8 @@ def read_measurement(path: str | Path) -> Measurement:
     path = Path(path)
     _, name_gains, uid = _parse_name(path)
     raw = _read_regular(path, MAX_CSV_BYTES, "measurement file")
-    text = _decode(path, raw, "measurement file")
-    data = _parse_rows(path, text, 3, "(time, angle1, angle2)", increasing_first=True, angle_columns=(1, 2))
+    data = _parse_csv(path, raw, "measurement file", 3, "(time, angle1, angle2)", increasing_first=True,
+                      angle_columns=(1, 2))
     if len(data) < 2:
         raise MeasurementError(f"{path}: fewer than two data rows")
     side = sidecar_path(path)
