@@ -27,6 +27,16 @@ of a complete temporary file. So
 * a format-2 CSV without a sidecar, or whose bytes do not match the sidecar's hash, is an
   error, never a thesis file.
 
+Durability: each file is flushed to disk (``fsync``) before its name appears, and its
+directory after, so a committed measurement survives a power loss. Inside
+:func:`deferred_sync` (a twin sweep's batch: hundreds of files a second, each cheap to
+measure again) the per-file flushes are left out and each directory written to is
+flushed once at the end. An interrupted *process* still leaves only complete files
+(the names appear by atomic links); after a power loss or OS crash, the files of the
+batch being written may be missing, empty or cut: the reader refuses those (sample count
+and SHA-256 against the sidecar, or a sidecar without its CSV) and a resumed sweep sets
+them aside and measures their points again.
+
 A sidecar-less file with a thesis name is a thesis file; its angles are relative to the
 start, so its first row must lie within :data:`RELATIVE_START_DEG` of zero -- an absolute
 angle there (e.g. 267 deg) is the orphan CSV of a pre-format-2 leglib write, and is
@@ -49,6 +59,8 @@ the user's umask.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import datetime as _dt
 import errno
 import fcntl
@@ -206,7 +218,8 @@ def _write_temp(directory: Path, final_name: str, data: bytes) -> Path:
             with os.fdopen(fd, "wb") as fh:
                 fh.write(data)
                 fh.flush()
-                os.fsync(fh.fileno())
+                if _DEFERRED.get() is None:
+                    os.fsync(fh.fileno())
         except BaseException:
             tmp.unlink(missing_ok=True)
             raise
@@ -235,6 +248,29 @@ def _fsync_dir(directory: Path) -> None:
         os.close(fd)
 
 
+_DEFERRED: contextvars.ContextVar = contextvars.ContextVar("leglib_dataio_deferred_sync", default=None)
+
+
+@contextlib.contextmanager
+def deferred_sync():
+    """Within, files written here are not flushed to disk one by one; on leaving (also by
+    an exception), every directory written to is flushed once.
+
+    For writes that are cheap to repeat (a twin sweep's batch): the commit protocol is
+    unchanged, but after a power loss the files written since the last flush may be
+    missing, empty or cut (the reader refuses them; see the module notes). Measurements
+    of the real leg are written without it.
+    """
+    dirs: set = set()
+    token = _DEFERRED.set(dirs)
+    try:
+        yield
+    finally:
+        _DEFERRED.reset(token)
+        for d in sorted(dirs):
+            _fsync_dir(d)
+
+
 def write_bytes_atomic(path: str | Path, data: bytes, overwrite: bool = False) -> Path:
     """Write ``data`` to ``path`` via a temporary file: the name shows a complete file or
     none. ``overwrite=False`` raises FileExistsError rather than replace a file."""
@@ -249,7 +285,11 @@ def write_bytes_atomic(path: str | Path, data: bytes, overwrite: bool = False) -
         raise FileExistsError(f"{path}: exists; not overwriting") from None
     finally:
         tmp.unlink(missing_ok=True)
-    _fsync_dir(path.parent)
+    deferred = _DEFERRED.get()
+    if deferred is None:
+        _fsync_dir(path.parent)
+    else:
+        deferred.add(path.parent)
     return path
 
 

@@ -1006,8 +1006,10 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
     so two sweeps into one directory share the grid: neither loses nor duplicates a point.
     Each file is committed when its point is done, so an interruption (exception, lost
     device, KeyboardInterrupt) loses no finished point; the axes go IDLE whatever happens.
-    On the twin, pending points run in batches of ``chunk`` through the compiled kernel;
-    on USB one after the other.
+    On the twin, pending points run in batches of ``chunk`` through the compiled kernel,
+    and each batch's files are flushed to disk together at its end
+    (:func:`leglib.dataio.deferred_sync`); on USB one after the other, each file flushed
+    as it is written.
     """
     import os
 
@@ -1111,10 +1113,13 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
                     else:
                         responses = [step_response(dev, *block[0], step=step, duration=duration,
                                                    sample_period=sample_period)]
-                    for resp in responses:
-                        written.append(resp.write(out_dir))
-                        unstable += not resp.completed
-                        bar.update(1)
+                    # the twin's batch is flushed to disk once, at its end (dataio.deferred_sync);
+                    # a real leg's measurement file by file
+                    with dataio.deferred_sync() if batched else contextlib.nullcontext():
+                        for resp in responses:
+                            written.append(resp.write(out_dir))
+                            unstable += not resp.completed
+                            bar.update(1)
                     if _any_error(dev):   # recorded with the failed point; the sweep goes on
                         clear_errors(dev)
                 for c in claims:

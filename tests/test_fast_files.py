@@ -1,10 +1,15 @@
 """Fast measurement files: the compiled CSV codec gives Python's numbers and text bit for
-bit and leaves every error to the careful reader."""
+bit and leaves every error to the careful reader; a twin sweep's batch is flushed to disk
+once."""
+
+import os
+import stat
 
 import numpy as np
 import pytest
 
 from leglib import csvcodec, dataio
+from leglib import odrive_io as io
 
 
 def _python_csv(data) -> bytes:
@@ -114,3 +119,31 @@ def test_errors_and_numbers_do_not_depend_on_the_fast_path(tmp_path, monkeypatch
     fast = outcome(tmp_path / "fast")
     monkeypatch.setattr(csvcodec, "parse3", lambda *a, **k: None)  # the careful parser only
     assert outcome(tmp_path / "slow") == fast
+
+
+@pytest.fixture(scope="module")
+def dev():
+    d = io.connect("virtual", seed=11)
+    io.apply_configuration(d)
+    io.calibrate(d)
+    return d
+
+
+def test_a_twin_batch_is_flushed_once_and_a_real_leg_file_by_file(dev, tmp_path, monkeypatch):
+    synced = []
+    real_fsync = os.fsync
+
+    def fsync(fd):
+        synced.append("dir" if stat.S_ISDIR(os.fstat(fd).st_mode) else "file")
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    grid = [(20.0, 0.03, 0.02), (30.0, 0.05, 0.02), (40.0, 0.05, 0.02)]
+    res = io.sweep(dev, grid, tmp_path / "twin", duration=0.2, progress=False)
+    assert len(res.written) == 3
+    # sweep.json (file and directory), then the batch's six files: their directory, once
+    assert synced == ["file", "dir", "dir"]
+    synced.clear()
+    t = np.arange(5) * 0.002
+    dataio.write_measurement(tmp_path / "leg", t, 267 + t, 273 - t, {"completed": True}, gains=(50, 0.046, 0.001))
+    assert synced == ["file", "dir", "file", "dir"]  # sidecar, then CSV, each flushed before it counts
