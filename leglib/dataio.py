@@ -204,7 +204,8 @@ def provenance() -> dict:
 # -- writing -----------------------------------------------------------------------------
 
 def _write_temp(directory: Path, final_name: str, data: bytes) -> Path:
-    """``data`` in a new hidden temporary file next to ``final_name``, flushed to disk.
+    """``data`` in a new hidden temporary file next to ``final_name``, flushed to disk
+    (not within :func:`deferred_sync`).
 
     Created with mode 0666 less the umask (``tempfile.mkstemp`` would force 0600).
     """
@@ -215,11 +216,14 @@ def _write_temp(directory: Path, final_name: str, data: bytes) -> Path:
         except FileExistsError:
             continue
         try:
-            with os.fdopen(fd, "wb") as fh:
-                fh.write(data)
-                fh.flush()
+            try:
+                view = memoryview(data)
+                while view:
+                    view = view[os.write(fd, view):]
                 if _DEFERRED.get() is None:
-                    os.fsync(fh.fileno())
+                    os.fsync(fd)
+            finally:
+                os.close(fd)
         except BaseException:
             tmp.unlink(missing_ok=True)
             raise
@@ -280,11 +284,12 @@ def write_bytes_atomic(path: str | Path, data: bytes, overwrite: bool = False) -
         if overwrite:
             os.replace(tmp, path)
         else:
-            _commit(tmp, path)
-    except FileExistsError:
-        raise FileExistsError(f"{path}: exists; not overwriting") from None
-    finally:
+            _commit(tmp, path)  # removes tmp
+    except BaseException as exc:
         tmp.unlink(missing_ok=True)
+        if isinstance(exc, FileExistsError):
+            raise FileExistsError(f"{path}: exists; not overwriting") from None
+        raise
     deferred = _DEFERRED.get()
     if deferred is None:
         _fsync_dir(path.parent)
@@ -324,7 +329,8 @@ def write_measurement(out_dir: str | Path, t, angle1_deg, angle2_deg, meta: dict
     uncommitted sidecar/temporary file that readers ignore (see the module notes).
     """
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    if not out_dir.is_dir():
+        out_dir.mkdir(parents=True, exist_ok=True)
     t, a1, a2 = (np.asarray(v, dtype=float) for v in (t, angle1_deg, angle2_deg))
     if not (t.shape == a1.shape == a2.shape) or t.ndim != 1 or t.size < 2:
         raise ValueError(f"write_measurement: t, angle1, angle2 must be 1-D of equal length >= 2, "
@@ -342,7 +348,7 @@ def write_measurement(out_dir: str | Path, t, angle1_deg, angle2_deg, meta: dict
                    "format": FORMAT, "columns": COLUMNS, "angles": "absolute",
                    "gains": None if gains is None else [float(g) for g in gains],
                    "samples": int(t.size), "csv_sha256": hashlib.sha256(body).hexdigest()}
-        text = json.dumps(sidecar, indent=2, sort_keys=True, default=_json_default).encode()
+        text = _json_text(sidecar)
         try:
             write_bytes_atomic(side, text)
         except FileExistsError:
@@ -352,6 +358,38 @@ def write_measurement(out_dir: str | Path, t, angle1_deg, angle2_deg, meta: dict
     raise FileExistsError(f"{out_dir}: could not find a free measurement name")
 
 
+_LAYOUTS: dict = {}  # compact JSON of a nested value -> its indented layout (see _json_text)
+_JSON_SCALARS = (str, int, float, type(None))  # bool is an int
+
+
+def _json_text(obj) -> bytes:
+    """``json.dumps(obj, indent=2, sort_keys=True, default=_json_default)``, the same text.
+
+    json lays out indented text in Python (about 0.2 ms for a sidecar). Here the top level
+    is laid out directly and each nested value's layout is remembered by its compact JSON
+    (written by json's compiled encoder): a sweep's sidecars repeat the same device
+    description. Anything else (no dict, other key or value types) goes to json.dumps.
+    """
+    if not (isinstance(obj, dict) and obj and all(type(k) is str for k in obj)
+            and all(isinstance(v, _JSON_SCALARS + (dict, list, tuple)) for v in obj.values())):
+        return json.dumps(obj, indent=2, sort_keys=True, default=_json_default).encode()
+    lines = []
+    for k in sorted(obj):
+        v = obj[k]
+        if isinstance(v, (dict, list, tuple)) and v:
+            compact = _COMPACT.encode(v)
+            text = _LAYOUTS.get(compact)
+            if text is None:
+                text = _INDENTED.encode(v).replace("\n", "\n  ")
+                if len(_LAYOUTS) >= 64:
+                    _LAYOUTS.clear()
+                _LAYOUTS[compact] = text
+        else:
+            text = _COMPACT.encode(v)
+        lines.append(f"  {_COMPACT.encode(k)}: {text}")
+    return ("{\n" + ",\n".join(lines) + "\n}").encode()
+
+
 def write_table(path: str | Path, data) -> Path:
     """Write a numeric table as CSV atomically (never overwriting)."""
     return write_bytes_atomic(path, _csv_bytes(data))
@@ -359,12 +397,15 @@ def write_table(path: str | Path, data) -> Path:
 
 # -- reading -----------------------------------------------------------------------------
 
-def _read_regular(path: Path, limit: int, what: str) -> bytes:
+def _read_regular(path: Path, limit: int, what: str, missing_ok: bool = False) -> bytes | None:
     """The bytes of ``path`` if it is a regular file (symlinks followed) of at most ``limit``
-    bytes; MeasurementError otherwise. Never blocks on a FIFO or reads a device."""
+    bytes; MeasurementError otherwise. Never blocks on a FIFO or reads a device.
+    ``missing_ok``: None when no such name exists (a dangling symlink is an error)."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
     except FileNotFoundError:
+        if missing_ok and not os.path.lexists(path):
+            return None
         raise MeasurementError(f"{path}: {what} not found") from None
     except OSError as exc:
         reason = {errno.ELOOP: "a symlink loop", errno.EISDIR: "a directory",
@@ -380,7 +421,13 @@ def _read_regular(path: Path, limit: int, what: str) -> bytes:
         if st.st_size > limit:
             raise MeasurementError(f"{path}: {what} is {st.st_size} bytes, more than the {limit} "
                                    f"a measurement may have")
-        chunks, total = [], 0
+        # one read when the size is as stat said: a regular file reads short only at its end
+        first = os.read(fd, st.st_size + 1)
+        if len(first) <= st.st_size:
+            return first
+        chunks, total = [first], len(first)
+        if total > limit:
+            raise MeasurementError(f"{path}: {what} grew beyond {limit} bytes while reading")
         while True:
             chunk = os.read(fd, 1 << 20)
             if not chunk:
@@ -492,6 +539,10 @@ def _json_default(o):
     raise TypeError(f"not JSON serializable: {type(o).__name__}")
 
 
+_COMPACT = json.JSONEncoder(sort_keys=True, default=_json_default)
+_INDENTED = json.JSONEncoder(indent=2, sort_keys=True, default=_json_default)
+
+
 def _is_number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
@@ -598,8 +649,8 @@ def read_measurement(path: str | Path) -> Measurement:
     if len(data) < 2:
         raise MeasurementError(f"{path}: fewer than two data rows")
     side = sidecar_path(path)
-    if os.path.lexists(side):
-        side_raw = _read_regular(side, MAX_SIDECAR_BYTES, "sidecar")
+    side_raw = _read_regular(side, MAX_SIDECAR_BYTES, "sidecar", missing_ok=True)
+    if side_raw is not None:
         try:
             meta = json.loads(_decode(side, side_raw, "sidecar"))
         except json.JSONDecodeError as exc:
@@ -737,10 +788,16 @@ class Claim:
 def claim(directory: str | Path, gains, wait: bool = False) -> Claim | None:
     """Claim the point ``gains`` in ``directory``; None if another process holds it
     (``wait=True`` blocks until it is released)."""
-    locks = Path(directory) / ".claims"
-    locks.mkdir(exist_ok=True)
-    key = hashlib.sha1(exact_gains_key(gains).encode()).hexdigest()[:20]
-    fd = os.open(locks / f"{key}.lock", os.O_RDWR | os.O_CREAT, 0o666)
+    locks = os.path.join(directory, ".claims")
+    lock = os.path.join(locks, hashlib.sha1(exact_gains_key(gains).encode()).hexdigest()[:20] + ".lock")
+    try:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+    except FileNotFoundError:  # the first claim in this directory
+        try:
+            os.mkdir(locks)
+        except FileExistsError:
+            pass
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
     except BlockingIOError:

@@ -1,7 +1,8 @@
 """Fast measurement files: the compiled CSV codec gives Python's numbers and text bit for
-bit and leaves every error to the careful reader; a twin sweep's batch is flushed to disk
-once."""
+bit and leaves every error to the careful reader; sidecar text as json.dumps; a twin
+sweep's batch is flushed to disk once."""
 
+import json
 import os
 import stat
 
@@ -119,6 +120,16 @@ def test_errors_and_numbers_do_not_depend_on_the_fast_path(tmp_path, monkeypatch
     fast = outcome(tmp_path / "fast")
     monkeypatch.setattr(csvcodec, "parse3", lambda *a, **k: None)  # the careful parser only
     assert outcome(tmp_path / "slow") == fast
+
+
+def test_sidecar_text_is_json_dumps():
+    rng = np.random.default_rng(3)
+    docs = [{"b": [1, [2, {}], {"z": 1.5, "a": None}], "a": "x\ny", "c": {}, "d": [], "e": float("nan"),
+             "f": True, "g": (1, 2), "h": np.float64(1 / 3), "u": "\u00e9", "v": {"n": np.int64(3), "w": np.arange(2)}},
+            {"x": np.arange(3)}, {"x": np.bool_(True)}, {1: 2}, [1, 2], {}, {"k": rng.normal(size=5).tolist()}]
+    for doc in docs * 2:  # the second time from the remembered layouts
+        assert dataio._json_text(doc) == json.dumps(doc, indent=2, sort_keys=True,
+                                                    default=dataio._json_default).encode()
 
 
 @pytest.fixture(scope="module")
