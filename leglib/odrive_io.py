@@ -733,16 +733,29 @@ class StepResponse:
     @classmethod
     def from_measurement(cls, m: "dataio.Measurement", leg: LegParams) -> "StepResponse":
         """Rebuild from a file; thesis files (relative angles) are placed at the rest pose."""
-        q1 = np.radians(m.angle1)
-        q2 = np.radians(m.angle2)
-        if not m.absolute:
-            # Listing 7.4 zeroes the angles at the start and records 360/cpr/3 * counts of
-            # the motor, i.e. joint angle changes in the motor's sense: convert to joint
-            q1 = leg.q1 + leg.direction * q1
-            q2 = leg.q2 + leg.direction * q2
-        _, y = foot_position(leg, q1, q2)
-        return cls(t=m.t - m.t[0], q1=q1, q2=q2, y=y, gains=m.gains, step=m.meta.get("step_turns", 0.4),
-                   completed=m.stable, abort_reason=m.meta.get("abort_reason"), meta=m.meta)
+        return cls.from_measurements([m], leg)[0]
+
+    @classmethod
+    def from_measurements(cls, measurements, leg: LegParams) -> list["StepResponse"]:
+        """:meth:`from_measurement` of each file, the foot heights of all in one call."""
+        joints = []
+        for m in measurements:
+            q1 = np.radians(m.angle1)
+            q2 = np.radians(m.angle2)
+            if not m.absolute:
+                # Listing 7.4 zeroes the angles at the start and records 360/cpr/3 * counts of
+                # the motor, i.e. joint angle changes in the motor's sense: convert to joint
+                q1 = leg.q1 + leg.direction * q1
+                q2 = leg.q2 + leg.direction * q2
+            joints.append((q1, q2))
+        if not joints:
+            return []
+        _, y = foot_position(leg, np.concatenate([q1 for q1, _ in joints]),
+                             np.concatenate([q2 for _, q2 in joints]))
+        ys = np.split(y, np.cumsum([q1.size for q1, _ in joints])[:-1])
+        return [cls(t=m.t - m.t[0], q1=q1, q2=q2, y=yi, gains=m.gains, step=m.meta.get("step_turns", 0.4),
+                    completed=m.stable, abort_reason=m.meta.get("abort_reason"), meta=m.meta)
+                for m, (q1, q2), yi in zip(measurements, joints, ys)]
 
 
 def _prepare_closed_loop(dev: Device, vel_limit: float, watchdog: float | None) -> None:
