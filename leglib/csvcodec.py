@@ -19,7 +19,7 @@ Parsing (:func:`parse3`)
     Lines are split at ``\\n``; a line of ASCII whitespace only is skipped (``str.strip``);
     any other line must be ``[ \\t]*NUM[ \\t]*,[ \\t]*NUM[ \\t]*,[ \\t]*NUM[ \\t]*\\r?`` with
     ``NUM = [+-]?([0-9]+(\\.[0-9]*)?|\\.[0-9]+)([eE][+-]?[0-9]+)?``, at most ``max_line``
-    bytes. A number is converted exactly when its significant digits form an integer
+    bytes. A number is converted exactly when its digits (at most 18) form an integer
     ``m <= 2^53`` and its decimal exponent ``e`` lies in [-22, 22]: ``m`` and ``10^|e|``
     are then exact doubles and one IEEE multiplication or division rounds correctly, as
     ``float()`` does (Clinger's fast path). Anything else -- a non-ASCII byte, another
@@ -97,34 +97,32 @@ def format_fixed6(data: np.ndarray) -> bytes | None:
 @njit(cache=True)
 def _number(b, i, end):
     """Parse NUM at b[i:end]: (value, index after it, ok); ok False when the grammar does
-    not match there or the value is not exactly convertible in the fast path."""
+    not match there or the value is not exactly convertible in the fast path (more than
+    18 digits, leading zeros included)."""
     neg = False
     if i < end and (b[i] == 43 or b[i] == 45):  # '+' '-'
         neg = b[i] == 45
         i += 1
-    m = np.int64(0)
-    sig = 0          # significant digits taken into m (after leading zeros)
+    m = np.int64(0)  # the digits as one integer (wraps past 18 digits: then not ok)
     nint = 0
-    while i < end and 48 <= b[i] <= 57:
-        if m > 0 or b[i] != 48:
-            if sig >= 18:
-                return 0.0, i, False
-            m = m * 10 + (b[i] - 48)
-            sig += 1
+    while i < end:
+        c = np.int64(b[i]) - 48
+        if c < 0 or c > 9:
+            break
+        m = m * 10 + c
         nint += 1
         i += 1
     nfrac = 0
     if i < end and b[i] == 46:  # '.'
         i += 1
-        while i < end and 48 <= b[i] <= 57:
-            if m > 0 or b[i] != 48:
-                if sig >= 18:
-                    return 0.0, i, False
-                m = m * 10 + (b[i] - 48)
-                sig += 1
+        while i < end:
+            c = np.int64(b[i]) - 48
+            if c < 0 or c > 9:
+                break
+            m = m * 10 + c
             nfrac += 1
             i += 1
-    if nint == 0 and nfrac == 0:
+    if nint + nfrac == 0 or nint + nfrac > 18:
         return 0.0, i, False
     e = 0
     if i < end and (b[i] == 101 or b[i] == 69):  # 'e' 'E'

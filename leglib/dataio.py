@@ -359,6 +359,7 @@ def write_measurement(out_dir: str | Path, t, angle1_deg, angle2_deg, meta: dict
 
 
 _LAYOUTS: dict = {}  # compact JSON of a nested value -> its indented layout (see _json_text)
+_json_string = json.encoder.encode_basestring_ascii  # what json writes for a str (ensure_ascii)
 _JSON_SCALARS = (str, int, float, type(None))  # bool is an int
 
 
@@ -384,9 +385,15 @@ def _json_text(obj) -> bytes:
                 if len(_LAYOUTS) >= 64:
                     _LAYOUTS.clear()
                 _LAYOUTS[compact] = text
+        elif type(v) is str:
+            text = _json_string(v)
+        elif v is None or v is True or v is False:
+            text = "null" if v is None else "true" if v else "false"
+        elif type(v) is int or (type(v) is float and math.isfinite(v)):
+            text = repr(v)
         else:
             text = _COMPACT.encode(v)
-        lines.append(f"  {_COMPACT.encode(k)}: {text}")
+        lines.append(f"  {_json_string(k)}: {text}")
     return ("{\n" + ",\n".join(lines) + "\n}").encode()
 
 
