@@ -297,9 +297,9 @@ class GainMap:
                 raise dataio.MeasurementError(f"{seen[key]} and {m.path} both hold gains {m.gains}: "
                                               f"a map cell holds one measurement; move one away")
             seen[key] = m.path
-        points = []
-        for m in tqdm(measurements, desc="identify", unit="file", disable=not progress):
-            points.append(identify_response(StepResponse.from_measurement(m, leg), method))
+        with tqdm(total=len(measurements), desc="identify", unit="file", disable=not progress) as bar:
+            points = identify_many(StepResponse.from_measurements(measurements, leg), method)
+            bar.update(len(points))
         return cls(points)
 
     # -- summary -------------------------------------------------------------------------

@@ -733,16 +733,29 @@ class StepResponse:
     @classmethod
     def from_measurement(cls, m: "dataio.Measurement", leg: LegParams) -> "StepResponse":
         """Rebuild from a file; thesis files (relative angles) are placed at the rest pose."""
-        q1 = np.radians(m.angle1)
-        q2 = np.radians(m.angle2)
-        if not m.absolute:
-            # Listing 7.4 zeroes the angles at the start and records 360/cpr/3 * counts of
-            # the motor, i.e. joint angle changes in the motor's sense: convert to joint
-            q1 = leg.q1 + leg.direction * q1
-            q2 = leg.q2 + leg.direction * q2
-        _, y = foot_position(leg, q1, q2)
-        return cls(t=m.t - m.t[0], q1=q1, q2=q2, y=y, gains=m.gains, step=m.meta.get("step_turns", 0.4),
-                   completed=m.stable, abort_reason=m.meta.get("abort_reason"), meta=m.meta)
+        return cls.from_measurements([m], leg)[0]
+
+    @classmethod
+    def from_measurements(cls, measurements, leg: LegParams) -> list["StepResponse"]:
+        """:meth:`from_measurement` of each file, the foot heights of all in one call."""
+        joints = []
+        for m in measurements:
+            q1 = np.radians(m.angle1)
+            q2 = np.radians(m.angle2)
+            if not m.absolute:
+                # Listing 7.4 zeroes the angles at the start and records 360/cpr/3 * counts of
+                # the motor, i.e. joint angle changes in the motor's sense: convert to joint
+                q1 = leg.q1 + leg.direction * q1
+                q2 = leg.q2 + leg.direction * q2
+            joints.append((q1, q2))
+        if not joints:
+            return []
+        _, y = foot_position(leg, np.concatenate([q1 for q1, _ in joints]),
+                             np.concatenate([q2 for _, q2 in joints]))
+        ys = np.split(y, np.cumsum([q1.size for q1, _ in joints])[:-1])
+        return [cls(t=m.t - m.t[0], q1=q1, q2=q2, y=yi, gains=m.gains, step=m.meta.get("step_turns", 0.4),
+                    completed=m.stable, abort_reason=m.meta.get("abort_reason"), meta=m.meta)
+                for m, (q1, q2), yi in zip(measurements, joints, ys)]
 
 
 def _prepare_closed_loop(dev: Device, vel_limit: float, watchdog: float | None) -> None:
@@ -1006,8 +1019,10 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
     so two sweeps into one directory share the grid: neither loses nor duplicates a point.
     Each file is committed when its point is done, so an interruption (exception, lost
     device, KeyboardInterrupt) loses no finished point; the axes go IDLE whatever happens.
-    On the twin, pending points run in batches of ``chunk`` through the compiled kernel;
-    on USB one after the other.
+    On the twin, pending points run in batches of ``chunk`` through the compiled kernel,
+    and each batch's files are flushed to disk together at its end
+    (:func:`leglib.dataio.deferred_sync`); on USB one after the other, each file flushed
+    as it is written.
     """
     import os
 
@@ -1111,10 +1126,13 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
                     else:
                         responses = [step_response(dev, *block[0], step=step, duration=duration,
                                                    sample_period=sample_period)]
-                    for resp in responses:
-                        written.append(resp.write(out_dir))
-                        unstable += not resp.completed
-                        bar.update(1)
+                    # the twin's batch is flushed to disk once, at its end (dataio.deferred_sync);
+                    # a real leg's measurement file by file
+                    with dataio.deferred_sync() if batched else contextlib.nullcontext():
+                        for resp in responses:
+                            written.append(resp.write(out_dir))
+                            unstable += not resp.completed
+                            bar.update(1)
                     if _any_error(dev):   # recorded with the failed point; the sweep goes on
                         clear_errors(dev)
                 for c in claims:
