@@ -53,7 +53,7 @@ def test_listing_72_calibration_zeroing_then_closed_loop(dev):
 
 
 def test_step_starts_at_the_rest_pose_on_0_5_6(dev):
-    """Done-when of issue 11: apply_configuration, calibrate, step_response on 0.5.6 give
+    """apply_configuration, calibrate, step_response on 0.5.6 give
     q1 = 267 +- 2 deg at rest."""
     assert dev.firmware_version == (0, 5, 6)
     r = io.step_response(dev, *STABLE)
