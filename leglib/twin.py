@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit, prange
 
 from .drive import AxisMap
-from .model import _fivebar_dynamics, param_vector
+from .model import _fivebar_reduced, param_vector
 from .params import (LegParams, MotorParams, OdriveConfig, PlantParams, load_motor,
                      load_odrive_config, load_plant)
 
@@ -83,26 +83,59 @@ OSC_DECAY = 0.95     # a half-cycle at least this fraction of the previous one i
 # random numbers: a per-leg xorshift64* stream, so results do not depend on threading
 # ---------------------------------------------------------------------------------------
 
+# The state is passed and returned (the kernel keeps it in a register over its tick loop).
+
 @njit(cache=True, inline="always")
-def _next_u01(rng, b):
-    x = rng[b]
+def _next_u01(x):
+    """One xorshift64* step of state ``x``: (new state, a uniform in [0, 1))."""
     x ^= x >> np.uint64(12)
     x ^= x << np.uint64(25)
     x ^= x >> np.uint64(27)
-    rng[b] = x
-    return float((x * np.uint64(2685821657736338717)) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+    # the top 53 bits, converted as a signed integer (exact; one instruction)
+    return x, float(np.int64((x * np.uint64(2685821657736338717)) >> np.uint64(11))) * (1.0 / 9007199254740992.0)
 
 
 @njit(cache=True, inline="always")
-def _normal(rng, b):
-    # Irwin-Hall sum of four uniforms, scaled to unit variance: cheap and adequate for noise
-    s = _next_u01(rng, b) + _next_u01(rng, b) + _next_u01(rng, b) + _next_u01(rng, b)
-    return (s - 2.0) * 1.7320508075688772
+def _normal(x):
+    """(new state, a normal deviate): Irwin-Hall sum of four uniforms, scaled to unit
+    variance (bounded by +-2 sqrt(3)); cheap and adequate for noise."""
+    x, u0 = _next_u01(x)
+    x, u1 = _next_u01(x)
+    x, u2 = _next_u01(x)
+    x, u3 = _next_u01(x)
+    return x, (u0 + u1 + u2 + u3 - 2.0) * 1.7320508075688772
 
 
 # ---------------------------------------------------------------------------------------
 # the oscillation monitor (also used by odrive_io's polling loop on a real device)
 # ---------------------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def _oscillation_step(amp, prev, sgn0, count, halves, first, err, min_amp):
+    """One sample of :func:`oscillation_update` on its six slots, passed and returned as
+    scalars: (amp, prev, sgn0, count, halves, first, unstable)."""
+    sgn = 1.0 if err > 0 else -1.0
+    if sgn0 == 0.0:
+        sgn0 = sgn
+    flagged = False
+    if sgn != sgn0:
+        halves += 1.0
+        if halves == 2.0:
+            first = amp
+        if halves >= 3.0 and amp > min_amp and amp > OSC_GROWTH * first:
+            flagged = True
+        if amp > min_amp and halves >= 2.0 and prev > 0.0 and amp >= OSC_DECAY * prev:
+            count += 1.0
+        else:
+            count = 0.0
+        prev = amp
+        amp = 0.0
+        sgn0 = sgn
+    e = abs(err)
+    if e > amp:
+        amp = e
+    return amp, prev, sgn0, count, halves, first, flagged or count >= OSC_HALF_CYCLES
+
 
 @njit(cache=True)
 def oscillation_update(st, err, min_amp):
@@ -117,28 +150,45 @@ def oscillation_update(st, err, min_amp):
     response never grows past it), or OSC_HALF_CYCLES half-cycles in a row keep at least
     OSC_DECAY of the previous amplitude.
     """
-    sgn = 1.0 if err > 0 else -1.0
-    if st[2] == 0.0:
-        st[2] = sgn
-    flagged = False
-    if sgn != st[2]:
-        amp = st[0]
-        st[4] += 1.0
-        if st[4] == 2.0:
-            st[5] = amp
-        if st[4] >= 3.0 and amp > min_amp and amp > OSC_GROWTH * st[5]:
-            flagged = True
-        if amp > min_amp and st[4] >= 2.0 and st[1] > 0.0 and amp >= OSC_DECAY * st[1]:
-            st[3] += 1.0
-        else:
-            st[3] = 0.0
-        st[1] = amp
-        st[0] = 0.0
-        st[2] = sgn
-    a = abs(err)
-    if a > st[0]:
-        st[0] = a
-    return flagged or st[3] >= OSC_HALF_CYCLES
+    st[0], st[1], st[2], st[3], st[4], st[5], unstable = _oscillation_step(
+        st[0], st[1], st[2], st[3], st[4], st[5], err, min_amp)
+    return unstable
+
+
+@njit(cache=True, inline="always")
+def _oscillation_update_at(AS, b, a, err, min_amp):
+    """:func:`oscillation_update` on the monitor of axis ``a`` of leg ``b`` in place
+    (AS[b, a, S_OSC:S_OSC + N_OSC], without a slice per tick)."""
+    o = S_OSC
+    (AS[b, a, o], AS[b, a, o + 1], AS[b, a, o + 2], AS[b, a, o + 3], AS[b, a, o + 4], AS[b, a, o + 5],
+     unstable) = _oscillation_step(AS[b, a, o], AS[b, a, o + 1], AS[b, a, o + 2], AS[b, a, o + 3],
+                                   AS[b, a, o + 4], AS[b, a, o + 5], err, min_amp)
+    return unstable
+
+
+# ---------------------------------------------------------------------------------------
+# friction terms: the library calls only where their result is not a constant in double
+# precision (same numbers, bit for bit)
+# ---------------------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def _tanh(x):
+    """math.tanh(x); +-1 without the call for |x| > 20 (tanh is +-1.0 there)."""
+    if x > 20.0:
+        return 1.0
+    if x < -20.0:
+        return -1.0
+    return math.tanh(x)
+
+
+@njit(cache=True, inline="always")
+def _stribeck(excess, u):
+    """excess * exp(-u^2), the Stribeck term; 0 without the call when there is none or
+    when exp underflows (u^2 > 750)."""
+    u2 = u * u
+    if excess == 0.0 or u2 > 750.0:
+        return 0.0 * excess
+    return excess * math.exp(-u2)
 
 
 # ---------------------------------------------------------------------------------------
@@ -176,6 +226,14 @@ def _run_serial(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
                  rec_every, rec_offset)
 
 
+@njit(cache=True, inline="always")
+def _param_row(P, b):
+    """Row ``b`` of P (the 19 entries of ``derivation.PARAM_NAMES``) as a tuple: loaded once
+    per call, so the five-bar's constant terms leave the tick loop."""
+    return (P[b, 0], P[b, 1], P[b, 2], P[b, 3], P[b, 4], P[b, 5], P[b, 6], P[b, 7], P[b, 8], P[b, 9],
+            P[b, 10], P[b, 11], P[b, 12], P[b, 13], P[b, 14], P[b, 15], P[b, 16], P[b, 17], P[b, 18])
+
+
 @njit(cache=True)
 def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC, rec_every,
              rec_offset):
@@ -189,6 +247,11 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
     n_tab = TT.shape[1]
     n_rec = REC.shape[1]
     two_pi = 2.0 * math.pi
+    Pb = _param_row(P, b)
+    rng = RNG[b]
+    # the current loop's discrete pole (the host changes C only between calls)
+    alpha0 = 1.0 - math.exp(-C[b, 0, C_CURRENT_BW] * dt)
+    alpha1 = 1.0 - math.exp(-C[b, 1, C_CURRENT_BW] * dt)
     tau = np.zeros(2)
     for k in range(n_ticks):
         if ABORT[b, 1] == ABORT_NONFINITE:
@@ -221,7 +284,8 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
             j = j_of_a0 if a == 0 else 1 - j_of_a0
             q = X[b, 2 * j]
             turns = dirn * (q - DRV[3 + j]) * N / two_pi
-            raw = turns * cpr + enc_noise * _normal(RNG, b)
+            rng, nz = _normal(rng)
+            raw = turns * cpr + enc_noise * nz
             off = C[b, a, C_COUNT_OFFSET]
             counts = (math.floor(raw + 0.5) if DRV[9] > 0.0 else raw) + off
             AI[b, a, I_COUNTS] = np.int64(math.floor(raw + 0.5) + off)
@@ -251,7 +315,8 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
                 pp = DRV[10]
                 iq = i_now * math.sin(two_pi * pp * (AS[b, a, S_CAL_POS] - turns))
                 AS[b, a, S_IQ] = iq
-                AS[b, a, S_IQ_MEAS] = iq + cur_noise * _normal(RNG, b)
+                rng, nz = _normal(rng)
+                AS[b, a, S_IQ_MEAS] = iq + cur_noise * nz
                 AS[b, a, S_INTEGRATOR] = 0.0
                 tau[j] = dirn * N * DRV[8] * iq
                 w = AS[b, a, S_VEL_EST] * two_pi
@@ -324,7 +389,7 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
                 if abs(err) > C[b, a, C_ABORT_ERROR]:
                     abort_now = True
                     abort_code = ABORT_POSITION_ERROR
-                elif oscillation_update(AS[b, a, S_OSC:S_OSC + N_OSC], err, 0.025 * C[b, a, C_ABORT_ERROR]):
+                elif _oscillation_update_at(AS, b, a, err, 0.025 * C[b, a, C_ABORT_ERROR]):
                     abort_now = True
                     abort_code = ABORT_OSCILLATION
             if mode == MODE_TORQUE:
@@ -365,10 +430,11 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
                     AS[b, a, S_INTEGRATOR] += C[b, a, C_VEL_INT_GAIN] * dt * verr
                 lim = C[b, a, C_VEL_INT_LIMIT]
                 AS[b, a, S_INTEGRATOR] = min(max(AS[b, a, S_INTEGRATOR], -lim), lim)
-            alpha = 1.0 - math.exp(-C[b, a, C_CURRENT_BW] * dt)
+            alpha = alpha0 if a == 0 else alpha1
             iq = AS[b, a, S_IQ] + alpha * (torque / kt - AS[b, a, S_IQ])
             AS[b, a, S_IQ] = iq
-            iq_meas = iq + cur_noise * _normal(RNG, b)
+            rng, nz = _normal(rng)
+            iq_meas = iq + cur_noise * nz
             AS[b, a, S_IQ_MEAS] = iq_meas
             if abs(iq_meas) > C[b, a, C_CURRENT_LIM] + CURRENT_LIM_MARGIN:
                 AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_CURRENT_LIMIT_VIOLATION
@@ -428,12 +494,12 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
         # ---- mechanics
         q1, dq1, q2, dq2 = X[b, 0], X[b, 1], X[b, 2], X[b, 3]
         if MECH[b] == 0:
-            r5 = _fivebar_dynamics(q1, q2, dq1, dq2, P[b])
+            r5 = _fivebar_reduced(math.cos(q1), math.sin(q1), math.cos(q2), math.sin(q2), dq1, dq2, Pb)
             d11, d12, d22, b1, b2 = r5[0], r5[1], r5[2], r5[3], r5[4]
         else:
             d11, d12, d22, b1, b2 = FR[b, 11], 0.0, FR[b, 12], 0.0, 0.0
-        f1 = FR[b, 0] * dq1 + (FR[b, 2] + FR[b, 4] * math.exp(-(dq1 / FR[b, 6]) ** 2)) * math.tanh(dq1 / FR[b, 7])
-        f2 = FR[b, 1] * dq2 + (FR[b, 3] + FR[b, 5] * math.exp(-(dq2 / FR[b, 6]) ** 2)) * math.tanh(dq2 / FR[b, 7])
+        f1 = FR[b, 0] * dq1 + (FR[b, 2] + _stribeck(FR[b, 4], dq1 / FR[b, 6])) * _tanh(dq1 / FR[b, 7])
+        f2 = FR[b, 1] * dq2 + (FR[b, 3] + _stribeck(FR[b, 5], dq2 / FR[b, 6])) * _tanh(dq2 / FR[b, 7])
         t1 = tau[0] - b1 - f1
         t2 = tau[1] - b2 - f2
         if MECH[b] == 0:
@@ -464,6 +530,7 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
         X[b, 2] = q2 + dq2 * dt
         X[b, 3] = dq2
         X[b, 4] += dt
+    RNG[b] = rng
 
 
 # ---------------------------------------------------------------------------------------
