@@ -59,17 +59,19 @@ def _foot_cs(c1, s1, c2, s2, P):
     if s2 * c1 - c2 * s1 <= 1e-9:  # sin(q2 - q1)
         return math.nan, math.nan, p1x, p1y, p2x, p2y
     dx, dy = p2x - p1x, p2y - p1y
-    d = math.sqrt(dx * dx + dy * dy)
-    if d < 1e-12 or d > l3 + l4 or d < abs(l4 - l3):
+    dd = dx * dx + dy * dy    # |P2 - P1|^2
+    if dd < 1e-24 or dd > (l3 + l4) * (l3 + l4) or dd < (l4 - l3) * (l4 - l3):
         return math.nan, math.nan, p1x, p1y, p2x, p2y
-    ex, ey = dx / d, dy / d
-    a = (l4 * l4 - l3 * l3 + d * d) / (2.0 * d)
-    hh = math.sqrt(max(l4 * l4 - a * a, 0.0))
-    nx, ny = -ey, ex
-    side = -(nx * p1x + ny * p1y)  # where the hip lies relative to the line P1-P2
-    s = -1.0 if side > 0 else 1.0
-    fx = p1x + a * ex + s * hh * nx
-    fy = p1y + a * ey + s * hh * ny
+    # along P1-P2 and along its normal (-dy, dx), in units of |P2 - P1|: one division and
+    # one square root
+    inv = 1.0 / dd
+    ka = 0.5 * (l4 * l4 - l3 * l3 + dd) * inv
+    kh = math.sqrt(max(l4 * l4 * inv - ka * ka, 0.0))
+    side = dy * p1x - dx * p1y  # where the hip lies relative to the line P1-P2
+    if side > 0:
+        kh = -kh
+    fx = p1x + ka * dx - kh * dy
+    fy = p1y + ka * dy + kh * dx
     return fx, fy, p1x, p1y, p2x, p2y
 
 

@@ -167,18 +167,77 @@ def _oscillation_update_at(AS, b, a, err, min_amp):
 
 
 # ---------------------------------------------------------------------------------------
-# friction terms: the library calls only where their result is not a constant in double
-# precision (same numbers, bit for bit)
+# elementary functions inlined into the tick loop: a library call there costs its own
+# time plus the registers it makes the loop spill, and sits on the tick's critical path.
+# Within a few ulp of the math module's (tests/test_twin.py).
 # ---------------------------------------------------------------------------------------
+
+# sin, cos: fdlibm's reduction by pi/2 (in two parts, exact for |x| < 1e6) and its kernels
+_INVPIO2 = 6.36619772367581382433e-01
+_PIO2_1 = 1.57079632673412561417e+00    # the first 33 bits of pi/2
+_PIO2_1T = 6.07710050650619224932e-11   # pi/2 - _PIO2_1
+_S1, _S2, _S3, _S4, _S5, _S6 = (-1.66666666666666324348e-01, 8.33333333332248946124e-03,
+                                -1.98412698298579493134e-04, 2.75573137070700676789e-06,
+                                -2.50507602534068634195e-08, 1.58969099521155010221e-10)
+_C1, _C2, _C3, _C4, _C5, _C6 = (4.16666666666666019037e-02, -1.38888888888741095749e-03,
+                                2.48015872894767294178e-05, -2.75573143513906633035e-07,
+                                2.08757232129817482790e-09, -1.13596475577881948265e-11)
+
+
+@njit(cache=True, inline="always")
+def _sincos(x):
+    """(sin x, cos x) for |x| < 1e6 (a joint angle) without a library call."""
+    n = math.floor(x * _INVPIO2 + 0.5)
+    y = (x - n * _PIO2_1) - n * _PIO2_1T          # in [-pi/4, pi/4]
+    z = y * y
+    s = y + y * z * (_S1 + z * (_S2 + z * (_S3 + z * (_S4 + z * (_S5 + z * _S6)))))
+    r = z * z * (_C1 + z * (_C2 + z * (_C3 + z * (_C4 + z * (_C5 + z * _C6)))))
+    hz = 0.5 * z
+    w = 1.0 - hz
+    c = w + (((1.0 - w) - hz) + r)
+    quadrant = int(n) & 3
+    if quadrant == 0:
+        return s, c
+    if quadrant == 1:
+        return c, -s
+    if quadrant == 2:
+        return -s, -c
+    return -c, s
+
+
+# tanh: Cephes' rational form below 0.625, else 1 - 2 / (exp(2|x|) + 1) with Cephes' exp
+_LOG2E = 1.4426950408889634073599
+_LN2_HI, _LN2_LO = 6.93145751953125e-1, 1.42860682030941723212e-6
+_EP0, _EP1, _EP2 = 1.26177193074810590878e-4, 3.02994407707441961300e-2, 9.99999999999999999910e-1
+_EQ0, _EQ1, _EQ2, _EQ3 = (3.00198505138664455042e-6, 2.52448340349684104192e-3,
+                          2.27265548208155028766e-1, 2.00000000000000000009e0)
+_TP0, _TP1, _TP2 = -9.64399179425052238628e-1, -9.92877231001918586564e1, -1.61468768441708447952e3
+_TQ0, _TQ1, _TQ2 = 1.12811678491632931402e2, 2.23548839060100448583e3, 4.84406305325125486048e3
+_POW2 = np.array([2.0 ** k for k in range(64)])
+
 
 @njit(cache=True, inline="always")
 def _tanh(x):
-    """math.tanh(x); +-1 without the call for |x| > 20 (tanh is +-1.0 there)."""
-    if x > 20.0:
+    """tanh x without a library call (+-1 exactly beyond |x| = 20, as math.tanh)."""
+    a = abs(x)
+    if a < 0.625:
+        z = x * x
+        return x + x * z * ((_TP0 * z + _TP1) * z + _TP2) / (((z + _TQ0) * z + _TQ1) * z + _TQ2)
+    if a <= 20.0:
+        # exp(2a) = 2^n (q + p) / (q - p), |r| <= ln2 / 2, n in [2, 58]; tanh = (e - 1) / (e + 1)
+        n = math.floor(_LOG2E * (2.0 * a) + 0.5)
+        r = (2.0 * a - n * _LN2_HI) - n * _LN2_LO
+        rr = r * r
+        p = r * ((_EP0 * rr + _EP1) * rr + _EP2)
+        q = ((_EQ0 * rr + _EQ1) * rr + _EQ2) * rr + _EQ3
+        num = (q + p) * _POW2[int(n)]
+        t = (num - (q - p)) / (num + (q - p))
+        return t if x > 0.0 else -t
+    if x > 0.0:
         return 1.0
-    if x < -20.0:
+    if x < 0.0:
         return -1.0
-    return math.tanh(x)
+    return x   # NaN
 
 
 @njit(cache=True, inline="always")
@@ -249,9 +308,15 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
     two_pi = 2.0 * math.pi
     Pb = _param_row(P, b)
     rng = RNG[b]
-    # the current loop's discrete pole (the host changes C only between calls)
+    # per-call invariants (the host changes C only between calls): the current loop's
+    # discrete pole, and reciprocals (a division in the tick loop is on its critical path)
     alpha0 = 1.0 - math.exp(-C[b, 0, C_CURRENT_BW] * dt)
     alpha1 = 1.0 - math.exp(-C[b, 1, C_CURRENT_BW] * dt)
+    inv_kt0, inv_kt1 = 1.0 / C[b, 0, C_KT], 1.0 / C[b, 1, C_KT]
+    turns_per_rad = N / two_pi
+    inv_cpr = 1.0 / cpr
+    inv_vbus = 1.0 / C[b, 0, C_VBUS]
+    inv_v_stribeck, inv_v_smooth = 1.0 / FR[b, 6], 1.0 / FR[b, 7]
     tau = np.zeros(2)
     for k in range(n_ticks):
         if ABORT[b, 1] == ABORT_NONFINITE:
@@ -283,7 +348,7 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
         for a in range(2):
             j = j_of_a0 if a == 0 else 1 - j_of_a0
             q = X[b, 2 * j]
-            turns = dirn * (q - DRV[3 + j]) * N / two_pi
+            turns = dirn * (q - DRV[3 + j]) * turns_per_rad
             rng, nz = _normal(rng)
             raw = turns * cpr + enc_noise * nz
             off = C[b, a, C_COUNT_OFFSET]
@@ -294,10 +359,10 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
             kp = 2.0 * C[b, a, C_ENCODER_BW]
             ki = 0.25 * kp * kp
             pe = AS[b, a, S_POS_EST] + dt * AS[b, a, S_VEL_EST]
-            delta = counts / cpr - pe
+            delta = counts * inv_cpr - pe
             pe += dt * kp * delta
             ve = AS[b, a, S_VEL_EST] + dt * ki * delta
-            if abs(ve) < 0.5 * dt * ki / cpr:
+            if abs(ve) < 0.5 * dt * ki * inv_cpr:
                 ve = 0.0
             AS[b, a, S_POS_EST] = pe
             AS[b, a, S_VEL_EST] = ve
@@ -320,7 +385,7 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
                 AS[b, a, S_INTEGRATOR] = 0.0
                 tau[j] = dirn * N * DRV[8] * iq
                 w = AS[b, a, S_VEL_EST] * two_pi
-                ib = (1.5 * DRV[11] * i_now ** 2 + DRV[8] * iq * w) / C[b, 0, C_VBUS]
+                ib = (1.5 * DRV[11] * i_now ** 2 + DRV[8] * iq * w) * inv_vbus
                 AS[b, a, S_IBUS_MOTOR] = ib
                 ibus_sum += ib
                 continue
@@ -431,7 +496,7 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
                 lim = C[b, a, C_VEL_INT_LIMIT]
                 AS[b, a, S_INTEGRATOR] = min(max(AS[b, a, S_INTEGRATOR], -lim), lim)
             alpha = alpha0 if a == 0 else alpha1
-            iq = AS[b, a, S_IQ] + alpha * (torque / kt - AS[b, a, S_IQ])
+            iq = AS[b, a, S_IQ] + alpha * (torque * (inv_kt0 if a == 0 else inv_kt1) - AS[b, a, S_IQ])
             AS[b, a, S_IQ] = iq
             rng, nz = _normal(rng)
             iq_meas = iq + cur_noise * nz
@@ -447,14 +512,14 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
             tau[j] = dirn * N * DRV[8] * iq
             # this motor's bus current: copper loss plus mechanical power over vbus
             w = ve * two_pi
-            ib = (1.5 * DRV[11] * iq * iq + DRV[8] * iq * w) / C[b, 0, C_VBUS]
+            ib = (1.5 * DRV[11] * iq * iq + DRV[8] * iq * w) * inv_vbus
             AS[b, a, S_IBUS_MOTOR] = ib
             ibus_sum += ib
         # ---- the DC bus (low_level.cpp:320-376): brake resistor, then the bus limits
         brake_i = 0.0
         if C[b, 0, C_BRAKE_ON] > 0.0:
             brake_i = -ibus_sum - C[b, 0, C_MAX_REGEN]
-            duty = brake_i * C[b, 0, C_BRAKE_R] / C[b, 0, C_VBUS]
+            duty = brake_i * C[b, 0, C_BRAKE_R] * inv_vbus
             duty = min(max(duty, 0.0), 0.95)
             brake_i = duty * C[b, 0, C_VBUS] / C[b, 0, C_BRAKE_R]
             ibus_sum += brake_i
@@ -494,12 +559,14 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
         # ---- mechanics
         q1, dq1, q2, dq2 = X[b, 0], X[b, 1], X[b, 2], X[b, 3]
         if MECH[b] == 0:
-            r5 = _fivebar_reduced(math.cos(q1), math.sin(q1), math.cos(q2), math.sin(q2), dq1, dq2, Pb)
+            s_q1, c_q1 = _sincos(q1)
+            s_q2, c_q2 = _sincos(q2)
+            r5 = _fivebar_reduced(c_q1, s_q1, c_q2, s_q2, dq1, dq2, Pb)
             d11, d12, d22, b1, b2 = r5[0], r5[1], r5[2], r5[3], r5[4]
         else:
             d11, d12, d22, b1, b2 = FR[b, 11], 0.0, FR[b, 12], 0.0, 0.0
-        f1 = FR[b, 0] * dq1 + (FR[b, 2] + _stribeck(FR[b, 4], dq1 / FR[b, 6])) * _tanh(dq1 / FR[b, 7])
-        f2 = FR[b, 1] * dq2 + (FR[b, 3] + _stribeck(FR[b, 5], dq2 / FR[b, 6])) * _tanh(dq2 / FR[b, 7])
+        f1 = FR[b, 0] * dq1 + (FR[b, 2] + _stribeck(FR[b, 4], dq1 * inv_v_stribeck)) * _tanh(dq1 * inv_v_smooth)
+        f2 = FR[b, 1] * dq2 + (FR[b, 3] + _stribeck(FR[b, 5], dq2 * inv_v_stribeck)) * _tanh(dq2 * inv_v_smooth)
         t1 = tau[0] - b1 - f1
         t2 = tau[1] - b2 - f2
         if MECH[b] == 0:
@@ -515,8 +582,9 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
                     t1 += pull
                     t2 -= pull
         det = d11 * d22 - d12 * d12
-        a1 = (d22 * t1 - d12 * t2) / det
-        a2 = (-d12 * t1 + d11 * t2) / det
+        inv_det = 1.0 / det
+        a1 = (d22 * t1 - d12 * t2) * inv_det
+        a2 = (-d12 * t1 + d11 * t2) * inv_det
         if not (math.isfinite(a1) and math.isfinite(a2)):
             ABORT[b, 0] = k
             ABORT[b, 1] = ABORT_NONFINITE
