@@ -86,24 +86,24 @@ OSC_DECAY = 0.95     # a half-cycle at least this fraction of the previous one i
 # The state is passed and returned (the kernel keeps it in a register over its tick loop).
 
 @njit(cache=True, inline="always")
-def _next_u01(x):
-    """One xorshift64* step of state ``x``: (new state, a uniform in [0, 1))."""
+def _next_u64(x):
+    """One xorshift64* step of state ``x``: (new state, 64 output bits)."""
     x ^= x >> np.uint64(12)
     x ^= x << np.uint64(25)
     x ^= x >> np.uint64(27)
-    # the top 53 bits, converted as a signed integer (exact; one instruction)
-    return x, float(np.int64((x * np.uint64(2685821657736338717)) >> np.uint64(11))) * (1.0 / 9007199254740992.0)
+    return x, x * np.uint64(2685821657736338717)
 
 
 @njit(cache=True, inline="always")
 def _normal(x):
-    """(new state, a normal deviate): Irwin-Hall sum of four uniforms, scaled to unit
-    variance (bounded by +-2 sqrt(3)); cheap and adequate for noise."""
-    x, u0 = _next_u01(x)
-    x, u1 = _next_u01(x)
-    x, u2 = _next_u01(x)
-    x, u3 = _next_u01(x)
-    return x, (u0 + u1 + u2 + u3 - 2.0) * 1.7320508075688772
+    """(new state, a normal deviate) from one step: the Irwin-Hall sum of four uniforms, the
+    output's top 52 bits as four 13-bit integers k_i, u_i = (k_i + 1/2) / 2^13 (mean 1/2 exactly),
+    scaled to unit variance; bounded by +-2 sqrt(3), cheap and adequate for noise."""
+    x, r = _next_u64(x)
+    m = np.uint64(0x1FFF)
+    k = (np.int64((r >> np.uint64(12)) & m) + np.int64((r >> np.uint64(25)) & m)
+         + np.int64((r >> np.uint64(38)) & m) + np.int64(r >> np.uint64(51)))
+    return x, (float(k) + 2.0 - 2.0 * 8192.0) * (1.7320508075688772 / 8192.0)
 
 
 # ---------------------------------------------------------------------------------------
