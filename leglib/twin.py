@@ -21,7 +21,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, set_parallel_chunksize
 
 from .drive import AxisMap
 from .model import _fivebar_reduced, param_vector
@@ -318,11 +318,13 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
     inv_vbus = 1.0 / C[b, 0, C_VBUS]
     inv_v_stribeck, inv_v_smooth = 1.0 / FR[b, 6], 1.0 / FR[b, 7]
     tau = np.zeros(2)
+    next_rec = 0 if rec_every > 0 else -1   # the next tick recorded (no modulo per tick)
     for k in range(n_ticks):
         if ABORT[b, 1] == ABORT_NONFINITE:
             break
         # ---- record (before the tick, so row 0 is the initial state)
-        if rec_every > 0 and k % rec_every == 0:
+        if k == next_rec:
+            next_rec += rec_every
             r = rec_offset + k // rec_every
             if r < n_rec:
                 REC[b, r, 0] = X[b, 4]
@@ -763,9 +765,18 @@ class Twin:
         tt = no_table if torque_table is None else np.ascontiguousarray(torque_table, float)
         tt_period = 1 if table_period is None else max(1, int(round(table_period / self.dt)))
         rec = no_rec if record is None else record
-        kernel = _run_serial if B == 1 else _run
-        kernel(n, self.dt, st.X, st.AS, st.AI, st.C, P, FR, MECH, self.DRV, st.RNG, st.ABORT, tt, tt_period,
-               rec, int(record_every), int(record_offset))
+        if B == 1:
+            _run_serial(n, self.dt, st.X, st.AS, st.AI, st.C, P, FR, MECH, self.DRV, st.RNG, st.ABORT, tt,
+                        tt_period, rec, int(record_every), int(record_offset))
+            return
+        # legs handed out one at a time (a dynamic schedule: legs that abort early finish
+        # early, and a core busy with something else takes fewer)
+        chunk = set_parallel_chunksize(1)
+        try:
+            _run(n, self.dt, st.X, st.AS, st.AI, st.C, P, FR, MECH, self.DRV, st.RNG, st.ABORT, tt, tt_period,
+                 rec, int(record_every), int(record_offset))
+        finally:
+            set_parallel_chunksize(chunk)
 
     def step_batch(self, gains: np.ndarray, step_turns: float = 0.4, duration: float = 1.5,
                    sample_period: float = 0.002, vel_limit: float | None = None,
