@@ -122,24 +122,20 @@ def _fivebar_reduced(c1, s1, c2, s2, dq1, dq2, P):
     a03 = (a22 * wx - a12 * wy) * inv_det
     a04 = (-a21 * wx + a11 * wy) * inv_det
     t = gen.fivebar_terms_cs(c1, s1, c2, s2, c3, s3, c4, s4, dq1, dq2, dphi3, dphi4, P)
-    # M row-major 4x4 in t[0:16], h in t[16:20], G in t[20:24]
+    # M row-major 4x4 in t[0:16], h in t[16:20], G in t[20:24]. M is diagonal but for the
+    # coupling of each upper link with the lower link it carries, M03 = M30 (links 1, 4)
+    # and M12 = M21 (links 2, 3) (tests/test_model.py checks the generated form)
+    m00, m03, m11, m12, m22, m33 = t[0], t[3], t[5], t[6], t[10], t[15]
     # S = [[1, 0], [0, 1], [j11, j12], [j21, j22]]: D = S^T M S, b = S^T (M a0 + h + G)
-    s0 = (1.0, 0.0, j11, j21)
-    s1_ = (0.0, 1.0, j12, j22)
-    d11 = 0.0
-    d12 = 0.0
-    d22 = 0.0
-    bb1 = 0.0
-    bb2 = 0.0
-    for i in range(4):
-        ms0 = t[4 * i] * s0[0] + t[4 * i + 1] * s0[1] + t[4 * i + 2] * s0[2] + t[4 * i + 3] * s0[3]
-        ms1 = t[4 * i] * s1_[0] + t[4 * i + 1] * s1_[1] + t[4 * i + 2] * s1_[2] + t[4 * i + 3] * s1_[3]
-        f = t[4 * i + 2] * a03 + t[4 * i + 3] * a04 + t[16 + i] + t[20 + i]
-        d11 += s0[i] * ms0
-        d12 += s0[i] * ms1
-        d22 += s1_[i] * ms1
-        bb1 += s0[i] * f
-        bb2 += s1_[i] * f
+    f0 = m03 * a04 + (t[16] + t[20])
+    f1 = m12 * a03 + (t[17] + t[21])
+    f2 = m22 * a03 + (t[18] + t[22])
+    f3 = m33 * a04 + (t[19] + t[23])
+    d11 = m00 + j21 * (2.0 * m03 + m33 * j21) + m22 * j11 * j11
+    d12 = (m03 * j22 + m12 * j11) + (m22 * j11 * j12 + m33 * j21 * j22)
+    d22 = m11 + j12 * (2.0 * m12 + m22 * j12) + m33 * j22 * j22
+    bb1 = f0 + (j11 * f2 + j21 * f3)
+    bb2 = f1 + (j12 * f2 + j22 * f3)
     return d11, d12, d22, bb1, bb2, c3, s3, c4, s4, dphi3, dphi4
 
 
