@@ -230,6 +230,13 @@ def _batch_lower_angles(q1, q2, P, out):
 
 
 @njit(cache=True)
+def _batch_foot(q1, q2, P, out):
+    for i in range(q1.size):
+        r = _foot_cs(math.cos(q1[i]), math.sin(q1[i]), math.cos(q2[i]), math.sin(q2[i]), P)
+        out[i, 0], out[i, 1] = r[0], r[1]
+
+
+@njit(cache=True)
 def _batch_energy(model_id, q1, q2, dq1, dq2, P, out):
     for i in range(q1.size):
         if model_id == 0:
@@ -298,9 +305,10 @@ def foot_position(leg: LegParams, q1, q2):
     q1, q2 : float or array_like [rad]
         Absolute angles of the upper links; broadcast together.
     """
-    q1 = np.asarray(q1, dtype=float)
-    phi3, phi4 = lower_link_angles(leg, q1, q2)
-    return leg.l1 * np.cos(q1) + leg.l4 * np.cos(phi4), leg.l1 * np.sin(q1) + leg.l4 * np.sin(phi4)
+    shape, (a, b) = _flat(q1, q2)
+    out = np.empty((a.size, 2))
+    _batch_foot(a, b, param_vector(leg), out)
+    return out[:, 0].reshape(shape), out[:, 1].reshape(shape)
 
 
 def inverse_kinematics(leg: LegParams, x, y):
