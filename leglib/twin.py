@@ -242,12 +242,15 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
     rng = RNG[b]
     # per-call invariants (the host changes C only between calls): the current loop's
     # discrete pole, and reciprocals (a division in the tick loop is on its critical path)
-    alpha0 = 1.0 - math.exp(-C[b, 0, C_CURRENT_BW] * dt)
-    alpha1 = 1.0 - math.exp(-C[b, 1, C_CURRENT_BW] * dt)
-    inv_kt0, inv_kt1 = 1.0 / C[b, 0, C_KT], 1.0 / C[b, 1, C_KT]
+    # (per axis in arrays: a select between two reciprocals would be folded back into a
+    # division)
+    alpha_ax, inv_kt_ax = np.empty(2), np.empty(2)
+    for a in range(2):
+        alpha_ax[a] = 1.0 - math.exp(-C[b, a, C_CURRENT_BW] * dt)
+        inv_kt_ax[a] = 1.0 / C[b, a, C_KT]
     turns_per_rad = N / two_pi
     inv_cpr = 1.0 / cpr
-    inv_vbus = 1.0 / C[b, 0, C_VBUS]
+    inv_vbus, inv_brake_r = 1.0 / C[b, 0, C_VBUS], 1.0 / C[b, 0, C_BRAKE_R]
     inv_v_stribeck, inv_v_smooth = 1.0 / FR[b, 6], 1.0 / FR[b, 7]
     tau = np.zeros(2)
     next_rec = 0 if rec_every > 0 else -1   # the next tick recorded (no modulo per tick)
@@ -429,8 +432,8 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
                     AS[b, a, S_INTEGRATOR] += C[b, a, C_VEL_INT_GAIN] * dt * verr
                 lim = C[b, a, C_VEL_INT_LIMIT]
                 AS[b, a, S_INTEGRATOR] = min(max(AS[b, a, S_INTEGRATOR], -lim), lim)
-            alpha = alpha0 if a == 0 else alpha1
-            iq = AS[b, a, S_IQ] + alpha * (torque * (inv_kt0 if a == 0 else inv_kt1) - AS[b, a, S_IQ])
+            alpha = alpha_ax[a]
+            iq = AS[b, a, S_IQ] + alpha * (torque * inv_kt_ax[a] - AS[b, a, S_IQ])
             AS[b, a, S_IQ] = iq
             rng, nz = _normal(rng)
             iq_meas = iq + cur_noise * nz
@@ -455,7 +458,7 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
             brake_i = -ibus_sum - C[b, 0, C_MAX_REGEN]
             duty = brake_i * C[b, 0, C_BRAKE_R] * inv_vbus
             duty = min(max(duty, 0.0), 0.95)
-            brake_i = duty * C[b, 0, C_VBUS] / C[b, 0, C_BRAKE_R]
+            brake_i = duty * C[b, 0, C_VBUS] * inv_brake_r
             ibus_sum += brake_i
         AS[b, 0, S_BRAKE_I] = brake_i
         AS[b, 0, S_IBUS] = ibus_sum
