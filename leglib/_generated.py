@@ -126,3 +126,34 @@ def fivebar_energy(q1, q2, phi3, phi4, dq1, dq2, dphi3, dphi4, P):
     x4 = math.sin(q1)
     x5 = math.sin(q2)
     return ((1/2)*I3*x0 + (1/2)*I4*x1 + (1/2)*lc1**2*m1*x2 + (1/2)*lc2**2*m2*x3 + (1/2)*m3*(2*dphi3*dq2*l2*lc3*math.cos(phi3 - q2) + l2**2*x3 + lc3**2*x0) + (1/2)*m4*(2*dphi4*dq1*l1*lc4*math.cos(phi4 - q1) + l1**2*x2 + lc4**2*x1) + (1/2)*x2*(I1 + Jd1) + (1/2)*x3*(I2 + Jd2), g*(lc1*m1*x4 + lc2*m2*x5 + m3*(l2*x5 + lc3*math.sin(phi3)) + m4*(l1*x4 + lc4*math.sin(phi4))),)
+
+
+@njit(cache=True)
+def fivebar_terms_cs(c1, s1, c2, s2, c3, s3, c4, s4, dq1, dq2, dphi3, dphi4, P):
+    """Model (b) as ``fivebar_terms``, in the unit vectors (c, s) of q1, q2, phi3, phi4 (no trigonometric call)."""
+    l1 = P[0]
+    l2 = P[1]
+    m1 = P[4]
+    m2 = P[5]
+    m3 = P[6]
+    m4 = P[7]
+    lc1 = P[8]
+    lc2 = P[9]
+    lc3 = P[10]
+    lc4 = P[11]
+    I1 = P[12]
+    I2 = P[13]
+    I3 = P[14]
+    I4 = P[15]
+    Jd1 = P[16]
+    Jd2 = P[17]
+    g = P[18]
+    x0 = l1*m4
+    x1 = lc4*x0
+    x2 = x1*(c1*c4 + s1*s4)
+    x3 = l2*m3
+    x4 = lc3*x3
+    x5 = x4*(c2*c3 + s2*s3)
+    x6 = x1*(c1*s4 - c4*s1)
+    x7 = x4*(c2*s3 - c3*s2)
+    return (I1 + Jd1 + l1**2*m4 + lc1**2*m1, 0.0, 0.0, x2, 0.0, I2 + Jd2 + l2**2*m3 + lc2**2*m2, x5, 0.0, 0.0, x5, I3 + lc3**2*m3, 0.0, x2, 0.0, 0.0, I4 + lc4**2*m4, -dphi4**2*x6, -dphi3**2*x7, dq2**2*x7, dq1**2*x6, c1*g*(lc1*m1 + x0), c2*g*(lc2*m2 + x3), c3*g*lc3*m3, c4*g*lc4*m4,)

@@ -180,6 +180,26 @@ def _function_source(name: str, args: list[sp.Symbol], exprs: list[sp.Expr], doc
     return "\n".join(lines) + "\n"
 
 
+def _unit_symbols():
+    """(c1, s1, c2, s2, c3, s3, c4, s4): cos and sin of q1, q2, phi3, phi4."""
+    return sp.symbols("c1 s1 c2 s2 c3 s3 c4 s4", real=True)
+
+
+def _in_unit_vectors(expr: sp.Expr, angles) -> sp.Expr:
+    """``expr`` with every cos/sin of a sum of ``angles`` expanded and written in the
+    angles' unit vectors (see :func:`_unit_symbols`)."""
+    cs = _unit_symbols()
+    rep = {}
+    for a, c, s in zip(angles, cs[0::2], cs[1::2]):
+        rep[sp.cos(a)] = c
+        rep[sp.sin(a)] = s
+    out = sp.expand_trig(expr).subs(rep)
+    left = out.atoms(sp.sin, sp.cos)
+    if left:
+        raise ValueError(f"trigonometric terms left after the substitution: {left}")
+    return out
+
+
 def generate_source() -> str:
     """Python source of the numba functions for both models (see module docstring)."""
     a = derive_parallelogram()
@@ -202,6 +222,10 @@ def generate_source() -> str:
                          "M (16, row-major), h (4), G (4)."),
         _function_source("fivebar_energy", qb, [b.T, b.V],
                          "Model (b): kinetic and potential energy [J]."),
+        _function_source("fivebar_terms_cs", list(_unit_symbols()) + list(b.dq),
+                         [_in_unit_vectors(e, b.q) for e in list(b.D) + list(b.h) + list(b.G)],
+                         "Model (b) as ``fivebar_terms``, in the unit vectors (c, s) of "
+                         "q1, q2, phi3, phi4 (no trigonometric call)."),
     ]
     return "\n\n".join(parts)
 

@@ -44,32 +44,99 @@ def _check_model(model: str) -> str:
 # compiled per-point kernels
 # ---------------------------------------------------------------------------------------
 
-@njit(cache=True)
-def _lower_angles(q1, q2, P):
-    """Absolute angles (phi3, phi4) of the lower links for joint angles q1, q2 [rad].
+@njit(cache=True, inline="always")
+def _foot_cs(c1, s1, c2, s2, P):
+    """The foot and the knees of the exact five-bar, from the unit vectors (c, s) = (cos,
+    sin) of the joint angles q1, q2: (fx, fy, p1x, p1y, p2x, p2y) [m], hip at the origin.
 
     The foot is the intersection of the circles (P1, l4) and (P2, l3) on the far side of the
     line P1-P2 from the hip (knee-out branch). Valid for 0 < q2 - q1 < pi (mod 2 pi), the
-    leg's assembly mode; returns NaNs outside it and where the loop cannot close.
+    leg's assembly mode; the foot is NaN outside it and where the loop cannot close.
     """
     l1, l2, l3, l4 = P[0], P[1], P[2], P[3]
-    if math.sin(q2 - q1) <= 1e-9:
-        return math.nan, math.nan
-    p1x, p1y = l1 * math.cos(q1), l1 * math.sin(q1)
-    p2x, p2y = l2 * math.cos(q2), l2 * math.sin(q2)
+    p1x, p1y = l1 * c1, l1 * s1
+    p2x, p2y = l2 * c2, l2 * s2
+    if s2 * c1 - c2 * s1 <= 1e-9:  # sin(q2 - q1)
+        return math.nan, math.nan, p1x, p1y, p2x, p2y
     dx, dy = p2x - p1x, p2y - p1y
-    d = math.sqrt(dx * dx + dy * dy)
-    if d < 1e-12 or d > l3 + l4 or d < abs(l4 - l3):
-        return math.nan, math.nan
-    ex, ey = dx / d, dy / d
-    a = (l4 * l4 - l3 * l3 + d * d) / (2.0 * d)
-    hh = math.sqrt(max(l4 * l4 - a * a, 0.0))
-    nx, ny = -ey, ex
-    side = -(nx * p1x + ny * p1y)  # where the hip lies relative to the line P1-P2
-    s = -1.0 if side > 0 else 1.0
-    fx = p1x + a * ex + s * hh * nx
-    fy = p1y + a * ey + s * hh * ny
+    dd = dx * dx + dy * dy    # |P2 - P1|^2
+    if dd < 1e-24 or dd > (l3 + l4) * (l3 + l4) or dd < (l4 - l3) * (l4 - l3):
+        return math.nan, math.nan, p1x, p1y, p2x, p2y
+    # along P1-P2 and along its normal (-dy, dx), in units of |P2 - P1|: one division and
+    # one square root
+    inv = 1.0 / dd
+    ka = 0.5 * (l4 * l4 - l3 * l3 + dd) * inv
+    kh = math.sqrt(max(l4 * l4 * inv - ka * ka, 0.0))
+    side = dy * p1x - dx * p1y  # where the hip lies relative to the line P1-P2
+    if side > 0:
+        kh = -kh
+    fx = p1x + ka * dx - kh * dy
+    fy = p1y + ka * dy + kh * dx
+    return fx, fy, p1x, p1y, p2x, p2y
+
+
+@njit(cache=True)
+def _lower_angles(q1, q2, P):
+    """Absolute angles (phi3, phi4) of the lower links for joint angles q1, q2 [rad] (see
+    :func:`_foot_cs`); NaNs outside the assembly mode and where the loop cannot close."""
+    fx, fy, p1x, p1y, p2x, p2y = _foot_cs(math.cos(q1), math.sin(q1), math.cos(q2), math.sin(q2), P)
     return math.atan2(fy - p2y, fx - p2x), math.atan2(fy - p1y, fx - p1x)
+
+
+@njit(cache=True, inline="always")
+def _fivebar_reduced(c1, s1, c2, s2, dq1, dq2, P):
+    """Reduced dynamics of the exact five-bar at one point, from the unit vectors (c, s) =
+    (cos, sin) of q1, q2: no trigonometric call (the loop closure gives the lower links'
+    unit vectors, :func:`leglib._generated.fivebar_terms_cs` the maximal-coordinate terms).
+
+    Returns (D11, D12, D22, b1, b2, c3, s3, c4, s4, dphi3, dphi4): D the 2x2 inertia matrix
+    on q and b = S^T (M a0 + h + G) the velocity-product plus gravity torque, so that
+    D ddq + b = tau (before friction); (c3, s3), (c4, s4) the unit vectors of phi3, phi4.
+    P may be the parameter vector or a tuple of its entries (hoisted by a caller's loop).
+    """
+    l1, l2, l3, l4 = P[0], P[1], P[2], P[3]
+    fx, fy, p1x, p1y, p2x, p2y = _foot_cs(c1, s1, c2, s2, P)
+    # lower links: u3 = (F - P2) / l3, u4 = (F - P1) / l4
+    e3x, e3y = fx - p2x, fy - p2y
+    e4x, e4y = fx - p1x, fy - p1y
+    inv_l3, inv_l4 = 1.0 / l3, 1.0 / l4
+    c3, s3 = e3x * inv_l3, e3y * inv_l3
+    c4, s4 = e4x * inv_l4, e4y * inv_l4
+    # Phi_phi = [-l3 u'(phi3), l4 u'(phi4)], Phi_q = [l1 u'(q1), -l2 u'(q2)], u' = (-sin, cos)
+    a11, a21 = e3y, -e3x
+    a12, a22 = -e4y, e4x
+    inv_det = 1.0 / (a11 * a22 - a12 * a21)
+    b11, b21 = -p1y, p1x
+    b12, b22 = p2y, -p2x
+    # J = -Phi_phi^{-1} Phi_q  (dphi = J dq)
+    j11 = -(a22 * b11 - a12 * b21) * inv_det
+    j12 = -(a22 * b12 - a12 * b22) * inv_det
+    j21 = -(-a21 * b11 + a11 * b21) * inv_det
+    j22 = -(-a21 * b12 + a11 * b22) * inv_det
+    dphi3 = j11 * dq1 + j12 * dq2
+    dphi4 = j21 * dq1 + j22 * dq2
+    # acceleration of (phi3, phi4) at ddq = 0: Phi_phi a0 = w
+    w1, w2, w3, w4 = dq1 * dq1, dq2 * dq2, dphi3 * dphi3, dphi4 * dphi4
+    wx = p1x * w1 + e4x * w4 - p2x * w2 - e3x * w3
+    wy = p1y * w1 + e4y * w4 - p2y * w2 - e3y * w3
+    a03 = (a22 * wx - a12 * wy) * inv_det
+    a04 = (-a21 * wx + a11 * wy) * inv_det
+    t = gen.fivebar_terms_cs(c1, s1, c2, s2, c3, s3, c4, s4, dq1, dq2, dphi3, dphi4, P)
+    # M row-major 4x4 in t[0:16], h in t[16:20], G in t[20:24]. M is diagonal but for the
+    # coupling of each upper link with the lower link it carries, M03 = M30 (links 1, 4)
+    # and M12 = M21 (links 2, 3) (tests/test_model.py checks the generated form)
+    m00, m03, m11, m12, m22, m33 = t[0], t[3], t[5], t[6], t[10], t[15]
+    # S = [[1, 0], [0, 1], [j11, j12], [j21, j22]]: D = S^T M S, b = S^T (M a0 + h + G)
+    f0 = m03 * a04 + (t[16] + t[20])
+    f1 = m12 * a03 + (t[17] + t[21])
+    f2 = m22 * a03 + (t[18] + t[22])
+    f3 = m33 * a04 + (t[19] + t[23])
+    d11 = m00 + j21 * (2.0 * m03 + m33 * j21) + m22 * j11 * j11
+    d12 = (m03 * j22 + m12 * j11) + (m22 * j11 * j12 + m33 * j21 * j22)
+    d22 = m11 + j12 * (2.0 * m12 + m22 * j12) + m33 * j22 * j22
+    bb1 = f0 + (j11 * f2 + j21 * f3)
+    bb2 = f1 + (j12 * f2 + j22 * f3)
+    return d11, d12, d22, bb1, bb2, c3, s3, c4, s4, dphi3, dphi4
 
 
 @njit(cache=True)
@@ -78,59 +145,10 @@ def _fivebar_dynamics(q1, q2, dq1, dq2, P):
 
     Returns (D11, D12, D22, b1, b2, phi3, phi4, dphi3, dphi4) with D the 2x2 inertia
     matrix on q and b = S^T (M a0 + h + G) the velocity-product plus gravity torque, so
-    that D ddq + b = tau (before friction).
+    that D ddq + b = tau (before friction). See :func:`_fivebar_reduced`.
     """
-    l1, l2, l3, l4 = P[0], P[1], P[2], P[3]
-    phi3, phi4 = _lower_angles(q1, q2, P)
-    # Phi_phi = [-l3 u'(phi3), l4 u'(phi4)], Phi_q = [l1 u'(q1), -l2 u'(q2)], u' = (-sin, cos)
-    a11, a21 = l3 * math.sin(phi3), -l3 * math.cos(phi3)
-    a12, a22 = -l4 * math.sin(phi4), l4 * math.cos(phi4)
-    det = a11 * a22 - a12 * a21
-    b11, b21 = -l1 * math.sin(q1), l1 * math.cos(q1)
-    b12, b22 = l2 * math.sin(q2), -l2 * math.cos(q2)
-    # J = -Phi_phi^{-1} Phi_q  (dphi = J dq)
-    j11 = -(a22 * b11 - a12 * b21) / det
-    j12 = -(a22 * b12 - a12 * b22) / det
-    j21 = -(-a21 * b11 + a11 * b21) / det
-    j22 = -(-a21 * b12 + a11 * b22) / det
-    dphi3 = j11 * dq1 + j12 * dq2
-    dphi4 = j21 * dq1 + j22 * dq2
-    # acceleration of (phi3, phi4) at ddq = 0: Phi_phi a0 = w
-    wx = (l1 * math.cos(q1) * dq1 * dq1 + l4 * math.cos(phi4) * dphi4 * dphi4
-          - l2 * math.cos(q2) * dq2 * dq2 - l3 * math.cos(phi3) * dphi3 * dphi3)
-    wy = (l1 * math.sin(q1) * dq1 * dq1 + l4 * math.sin(phi4) * dphi4 * dphi4
-          - l2 * math.sin(q2) * dq2 * dq2 - l3 * math.sin(phi3) * dphi3 * dphi3)
-    a03 = (a22 * wx - a12 * wy) / det
-    a04 = (-a21 * wx + a11 * wy) / det
-    t = gen.fivebar_terms(q1, q2, phi3, phi4, dq1, dq2, dphi3, dphi4, P)
-    # M row-major 4x4 in t[0:16], h in t[16:20], G in t[20:24]
-    # S = [[1, 0], [0, 1], [j11, j12], [j21, j22]]
-    s0 = (1.0, 0.0, j11, j21)
-    s1 = (0.0, 1.0, j12, j22)
-    ms0 = [0.0, 0.0, 0.0, 0.0]
-    ms1 = [0.0, 0.0, 0.0, 0.0]
-    f = [0.0, 0.0, 0.0, 0.0]
-    for i in range(4):
-        acc0 = 0.0
-        acc1 = 0.0
-        for k in range(4):
-            acc0 += t[4 * i + k] * s0[k]
-            acc1 += t[4 * i + k] * s1[k]
-        ms0[i] = acc0
-        ms1[i] = acc1
-        f[i] = t[4 * i + 2] * a03 + t[4 * i + 3] * a04 + t[16 + i] + t[20 + i]
-    d11 = 0.0
-    d12 = 0.0
-    d22 = 0.0
-    bb1 = 0.0
-    bb2 = 0.0
-    for i in range(4):
-        d11 += s0[i] * ms0[i]
-        d12 += s0[i] * ms1[i]
-        d22 += s1[i] * ms1[i]
-        bb1 += s0[i] * f[i]
-        bb2 += s1[i] * f[i]
-    return d11, d12, d22, bb1, bb2, phi3, phi4, dphi3, dphi4
+    r = _fivebar_reduced(math.cos(q1), math.sin(q1), math.cos(q2), math.sin(q2), dq1, dq2, P)
+    return r[0], r[1], r[2], r[3], r[4], math.atan2(r[6], r[5]), math.atan2(r[8], r[7]), r[9], r[10]
 
 
 @njit(cache=True)
@@ -212,6 +230,13 @@ def _batch_lower_angles(q1, q2, P, out):
 
 
 @njit(cache=True)
+def _batch_foot(q1, q2, P, out):
+    for i in range(q1.size):
+        r = _foot_cs(math.cos(q1[i]), math.sin(q1[i]), math.cos(q2[i]), math.sin(q2[i]), P)
+        out[i, 0], out[i, 1] = r[0], r[1]
+
+
+@njit(cache=True)
 def _batch_energy(model_id, q1, q2, dq1, dq2, P, out):
     for i in range(q1.size):
         if model_id == 0:
@@ -280,9 +305,10 @@ def foot_position(leg: LegParams, q1, q2):
     q1, q2 : float or array_like [rad]
         Absolute angles of the upper links; broadcast together.
     """
-    q1 = np.asarray(q1, dtype=float)
-    phi3, phi4 = lower_link_angles(leg, q1, q2)
-    return leg.l1 * np.cos(q1) + leg.l4 * np.cos(phi4), leg.l1 * np.sin(q1) + leg.l4 * np.sin(phi4)
+    shape, (a, b) = _flat(q1, q2)
+    out = np.empty((a.size, 2))
+    _batch_foot(a, b, param_vector(leg), out)
+    return out[:, 0].reshape(shape), out[:, 1].reshape(shape)
 
 
 def inverse_kinematics(leg: LegParams, x, y):

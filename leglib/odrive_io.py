@@ -811,10 +811,13 @@ def _abort_reason_of(code: int) -> str | None:
 def _responses_from_batch(dev: Device, gains, out: dict, step: float) -> list[StepResponse]:
     ax = dev.axes
     a1, a2 = ax.axis_of_joint
+    # joint angles and foot heights of all points at once (elementwise: the same numbers)
+    Q1 = ax.counts_to_joint(out["counts"][:, :, a1], 0)
+    Q2 = ax.counts_to_joint(out["counts"][:, :, a2], 1)
+    _, Y = foot_position(dev.leg, Q1, Q2)
     res = []
     for i, g in enumerate(np.atleast_2d(gains)):
-        q1 = ax.counts_to_joint(out["counts"][i, :, a1], 0)
-        q2 = ax.counts_to_joint(out["counts"][i, :, a2], 1)
+        q1, q2 = Q1[i], Q2[i]
         completed = out["abort_tick"][i] < 0 and not np.any(out["axis_error"][i])
         reason = _abort_reason_of(out["abort_reason"][i])
         if reason is None and not completed:
@@ -822,8 +825,7 @@ def _responses_from_batch(dev: Device, gains, out: dict, step: float) -> list[St
         n = len(out["t"]) if completed else max(2, int(out["abort_tick"][i] * dev.sim.twin.dt /
                                                      max(out["t"][1] - out["t"][0], 1e-12)) + 1)
         n = min(n, len(out["t"]))
-        _, y = foot_position(dev.leg, q1[:n], q2[:n])
-        res.append(StepResponse(t=out["t"][:n] - out["t"][0], q1=q1[:n], q2=q2[:n], y=y,
+        res.append(StepResponse(t=out["t"][:n] - out["t"][0], q1=q1[:n], q2=q2[:n], y=Y[i, :n],
                                 gains=tuple(float(x) for x in g), step=step, completed=bool(completed),
                                 abort_reason=reason,
                                 meta={**dev.describe(), "sample_rate_hz": 1.0 / (out["t"][1] - out["t"][0])}))

@@ -24,10 +24,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, set_parallel_chunksize
 
 from .drive import AxisMap
-from .model import _fivebar_dynamics, param_vector
+from .kernelmath import sincos as _sincos
+from .kernelmath import tanh as _tanh
+from .model import _fivebar_reduced, param_vector
 from .params import (LegParams, MotorParams, OdriveConfig, PlantParams, load_motor,
                      load_odrive_config, load_plant)
 
@@ -100,26 +102,59 @@ OSC_DECAY = 0.95     # a half-cycle at least this fraction of the previous one i
 # random numbers: a per-leg xorshift64* stream, so results do not depend on threading
 # ---------------------------------------------------------------------------------------
 
+# The state is passed and returned (the kernel keeps it in a register over its tick loop).
+
 @njit(cache=True, inline="always")
-def _next_u01(rng, b):
-    x = rng[b]
+def _next_u64(x):
+    """One xorshift64* step of state ``x``: (new state, 64 output bits)."""
     x ^= x >> np.uint64(12)
     x ^= x << np.uint64(25)
     x ^= x >> np.uint64(27)
-    rng[b] = x
-    return float((x * np.uint64(2685821657736338717)) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+    return x, x * np.uint64(2685821657736338717)
 
 
 @njit(cache=True, inline="always")
-def _normal(rng, b):
-    # Irwin-Hall sum of four uniforms, scaled to unit variance: cheap and adequate for noise
-    s = _next_u01(rng, b) + _next_u01(rng, b) + _next_u01(rng, b) + _next_u01(rng, b)
-    return (s - 2.0) * 1.7320508075688772
+def _normal(x):
+    """(new state, a normal deviate) from one step: the Irwin-Hall sum of four uniforms, the
+    output's top 52 bits as four 13-bit integers k_i, u_i = (k_i + 1/2) / 2^13 (mean 1/2 exactly),
+    scaled to unit variance; bounded by +-2 sqrt(3), cheap and adequate for noise."""
+    x, r = _next_u64(x)
+    m = np.uint64(0x1FFF)
+    k = (np.int64((r >> np.uint64(12)) & m) + np.int64((r >> np.uint64(25)) & m)
+         + np.int64((r >> np.uint64(38)) & m) + np.int64(r >> np.uint64(51)))
+    return x, (float(k) + 2.0 - 2.0 * 8192.0) * (1.7320508075688772 / 8192.0)
 
 
 # ---------------------------------------------------------------------------------------
 # the oscillation monitor (also used by odrive_io's polling loop on a real device)
 # ---------------------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def _oscillation_step(amp, prev, sgn0, count, halves, first, err, min_amp):
+    """One sample of :func:`oscillation_update` on its six slots, passed and returned as
+    scalars: (amp, prev, sgn0, count, halves, first, unstable)."""
+    sgn = 1.0 if err > 0 else -1.0
+    if sgn0 == 0.0:
+        sgn0 = sgn
+    flagged = False
+    if sgn != sgn0:
+        halves += 1.0
+        if halves == 2.0:
+            first = amp
+        if halves >= 3.0 and amp > min_amp and amp > OSC_GROWTH * first:
+            flagged = True
+        if amp > min_amp and halves >= 2.0 and prev > 0.0 and amp >= OSC_DECAY * prev:
+            count += 1.0
+        else:
+            count = 0.0
+        prev = amp
+        amp = 0.0
+        sgn0 = sgn
+    e = abs(err)
+    if e > amp:
+        amp = e
+    return amp, prev, sgn0, count, halves, first, flagged or count >= OSC_HALF_CYCLES
+
 
 @njit(cache=True)
 def oscillation_update(st, err, min_amp):
@@ -134,28 +169,34 @@ def oscillation_update(st, err, min_amp):
     response never grows past it), or OSC_HALF_CYCLES half-cycles in a row keep at least
     OSC_DECAY of the previous amplitude.
     """
-    sgn = 1.0 if err > 0 else -1.0
-    if st[2] == 0.0:
-        st[2] = sgn
-    flagged = False
-    if sgn != st[2]:
-        amp = st[0]
-        st[4] += 1.0
-        if st[4] == 2.0:
-            st[5] = amp
-        if st[4] >= 3.0 and amp > min_amp and amp > OSC_GROWTH * st[5]:
-            flagged = True
-        if amp > min_amp and st[4] >= 2.0 and st[1] > 0.0 and amp >= OSC_DECAY * st[1]:
-            st[3] += 1.0
-        else:
-            st[3] = 0.0
-        st[1] = amp
-        st[0] = 0.0
-        st[2] = sgn
-    a = abs(err)
-    if a > st[0]:
-        st[0] = a
-    return flagged or st[3] >= OSC_HALF_CYCLES
+    st[0], st[1], st[2], st[3], st[4], st[5], unstable = _oscillation_step(
+        st[0], st[1], st[2], st[3], st[4], st[5], err, min_amp)
+    return unstable
+
+
+@njit(cache=True, inline="always")
+def _oscillation_update_at(AS, b, a, err, min_amp):
+    """:func:`oscillation_update` on the monitor of axis ``a`` of leg ``b`` in place
+    (AS[b, a, S_OSC:S_OSC + N_OSC], without a slice per tick)."""
+    o = S_OSC
+    (AS[b, a, o], AS[b, a, o + 1], AS[b, a, o + 2], AS[b, a, o + 3], AS[b, a, o + 4], AS[b, a, o + 5],
+     unstable) = _oscillation_step(AS[b, a, o], AS[b, a, o + 1], AS[b, a, o + 2], AS[b, a, o + 3],
+                                   AS[b, a, o + 4], AS[b, a, o + 5], err, min_amp)
+    return unstable
+
+
+# ---------------------------------------------------------------------------------------
+# friction
+# ---------------------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def _stribeck(excess, u):
+    """excess * exp(-u^2), the Stribeck term; 0 without the call when there is none or
+    when exp underflows (u^2 > 750)."""
+    u2 = u * u
+    if excess == 0.0 or u2 > 750.0:
+        return 0.0 * excess
+    return excess * math.exp(-u2)
 
 
 # ---------------------------------------------------------------------------------------
@@ -318,6 +359,14 @@ def _run_serial(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
                  rec_every, rec_offset)
 
 
+@njit(cache=True, inline="always")
+def _param_row(P, b):
+    """Row ``b`` of P (the 19 entries of ``derivation.PARAM_NAMES``) as a tuple: loaded once
+    per call, so the five-bar's constant terms leave the tick loop."""
+    return (P[b, 0], P[b, 1], P[b, 2], P[b, 3], P[b, 4], P[b, 5], P[b, 6], P[b, 7], P[b, 8], P[b, 9],
+            P[b, 10], P[b, 11], P[b, 12], P[b, 13], P[b, 14], P[b, 15], P[b, 16], P[b, 17], P[b, 18])
+
+
 @njit(cache=True)
 def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC, rec_every,
              rec_offset):
@@ -331,13 +380,29 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
     n_tab = TT.shape[1]
     n_rec = REC.shape[1]
     two_pi = 2.0 * math.pi
+    Pb = _param_row(P, b)
+    rng = RNG[b]
+    # per-call invariants (the host changes C only between calls): the current loop's
+    # discrete pole, and reciprocals (a division in the tick loop is on its critical path)
+    # (per axis in arrays: a select between two reciprocals would be folded back into a
+    # division)
+    alpha_ax, inv_kt_ax = np.empty(2), np.empty(2)
+    for a in range(2):
+        alpha_ax[a] = 1.0 - math.exp(-C[b, a, C_CURRENT_BW] * dt)
+        inv_kt_ax[a] = 1.0 / C[b, a, C_KT]
+    turns_per_rad = N / two_pi
+    inv_cpr = 1.0 / cpr
+    inv_vbus, inv_brake_r = 1.0 / C[b, 0, C_VBUS], 1.0 / C[b, 0, C_BRAKE_R]
+    inv_v_stribeck, inv_v_smooth = 1.0 / FR[b, 6], 1.0 / FR[b, 7]
     tau = np.zeros(2)
     tm = np.zeros(2)   # the motor torques on the rotors (compliant belt)
+    next_rec = 0 if rec_every > 0 else -1   # the next tick recorded (no modulo per tick)
     for k in range(n_ticks):
         if ABORT[b, 1] == ABORT_NONFINITE:
             break
         # ---- record (before the tick, so row 0 is the initial state)
-        if rec_every > 0 and k % rec_every == 0:
+        if k == next_rec:
+            next_rec += rec_every
             r = rec_offset + k // rec_every
             if r < n_rec:
                 REC[b, r, 0] = X[b, 4]
@@ -365,8 +430,9 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
             q = X[b, 2 * j]
             if FR[b, F_BELT_K] > 0.0:       # compliant belt: the encoder is on the rotor
                 q = X[b, X_PHI1 + 2 * j]
-            turns = dirn * (q - DRV[3 + j]) * N / two_pi
-            raw = turns * cpr + enc_noise * _normal(RNG, b)
+            turns = dirn * (q - DRV[3 + j]) * turns_per_rad
+            rng, nz = _normal(rng)
+            raw = turns * cpr + enc_noise * nz
             if FR[b, F_ENC_ON] > 0.0:       # the encoder's reading error (plant [encoder_error])
                 raw += cpr * _encoder_error(FR, b, turns)
             off = C[b, a, C_COUNT_OFFSET]
@@ -377,10 +443,10 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
             kp = 2.0 * C[b, a, C_ENCODER_BW]
             ki = 0.25 * kp * kp
             pe = AS[b, a, S_POS_EST] + dt * AS[b, a, S_VEL_EST]
-            delta = counts / cpr - pe
+            delta = counts * inv_cpr - pe
             pe += dt * kp * delta
             ve = AS[b, a, S_VEL_EST] + dt * ki * delta
-            if abs(ve) < 0.5 * dt * ki / cpr:
+            if abs(ve) < 0.5 * dt * ki * inv_cpr:
                 ve = 0.0
             AS[b, a, S_POS_EST] = pe
             AS[b, a, S_VEL_EST] = ve
@@ -398,11 +464,12 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
                 pp = DRV[10]
                 iq = i_now * math.sin(two_pi * pp * (AS[b, a, S_CAL_POS] - turns))
                 AS[b, a, S_IQ] = iq
-                AS[b, a, S_IQ_MEAS] = iq + cur_noise * _normal(RNG, b)
+                rng, nz = _normal(rng)
+                AS[b, a, S_IQ_MEAS] = iq + cur_noise * nz
                 AS[b, a, S_INTEGRATOR] = 0.0
                 tau[j] = dirn * N * DRV[8] * iq
                 w = AS[b, a, S_VEL_EST] * two_pi
-                ib = (1.5 * DRV[11] * i_now ** 2 + DRV[8] * iq * w) / C[b, 0, C_VBUS]
+                ib = (1.5 * DRV[11] * i_now ** 2 + DRV[8] * iq * w) * inv_vbus
                 AS[b, a, S_IBUS_MOTOR] = ib
                 ibus_sum += ib
                 continue
@@ -471,7 +538,7 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
                 if abs(err) > C[b, a, C_ABORT_ERROR]:
                     abort_now = True
                     abort_code = ABORT_POSITION_ERROR
-                elif oscillation_update(AS[b, a, S_OSC:S_OSC + N_OSC], err, 0.025 * C[b, a, C_ABORT_ERROR]):
+                elif _oscillation_update_at(AS, b, a, err, 0.025 * C[b, a, C_ABORT_ERROR]):
                     abort_now = True
                     abort_code = ABORT_OSCILLATION
             if mode == MODE_TORQUE:
@@ -512,10 +579,11 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
                     AS[b, a, S_INTEGRATOR] += C[b, a, C_VEL_INT_GAIN] * dt * verr
                 lim = C[b, a, C_VEL_INT_LIMIT]
                 AS[b, a, S_INTEGRATOR] = min(max(AS[b, a, S_INTEGRATOR], -lim), lim)
-            alpha = 1.0 - math.exp(-C[b, a, C_CURRENT_BW] * dt)
-            iq = AS[b, a, S_IQ] + alpha * (torque / kt - AS[b, a, S_IQ])
+            alpha = alpha_ax[a]
+            iq = AS[b, a, S_IQ] + alpha * (torque * inv_kt_ax[a] - AS[b, a, S_IQ])
             AS[b, a, S_IQ] = iq
-            iq_meas = iq + cur_noise * _normal(RNG, b)
+            rng, nz = _normal(rng)
+            iq_meas = iq + cur_noise * nz
             AS[b, a, S_IQ_MEAS] = iq_meas
             if abs(iq_meas) > C[b, a, C_CURRENT_LIM] + CURRENT_LIM_MARGIN:
                 AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_CURRENT_LIMIT_VIOLATION
@@ -528,16 +596,16 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
             tau[j] = dirn * N * DRV[8] * iq
             # this motor's bus current: copper loss plus mechanical power over vbus
             w = ve * two_pi
-            ib = (1.5 * DRV[11] * iq * iq + DRV[8] * iq * w) / C[b, 0, C_VBUS]
+            ib = (1.5 * DRV[11] * iq * iq + DRV[8] * iq * w) * inv_vbus
             AS[b, a, S_IBUS_MOTOR] = ib
             ibus_sum += ib
         # ---- the DC bus (low_level.cpp:320-376): brake resistor, then the bus limits
         brake_i = 0.0
         if C[b, 0, C_BRAKE_ON] > 0.0:
             brake_i = -ibus_sum - C[b, 0, C_MAX_REGEN]
-            duty = brake_i * C[b, 0, C_BRAKE_R] / C[b, 0, C_VBUS]
+            duty = brake_i * C[b, 0, C_BRAKE_R] * inv_vbus
             duty = min(max(duty, 0.0), 0.95)
-            brake_i = duty * C[b, 0, C_VBUS] / C[b, 0, C_BRAKE_R]
+            brake_i = duty * C[b, 0, C_VBUS] * inv_brake_r
             ibus_sum += brake_i
         AS[b, 0, S_BRAKE_I] = brake_i
         AS[b, 0, S_IBUS] = ibus_sum
@@ -579,12 +647,14 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
             _belt_split(b, X, FR, tau, tm)
         q1, dq1, q2, dq2 = X[b, 0], X[b, 1], X[b, 2], X[b, 3]
         if MECH[b] == 0:
-            r5 = _fivebar_dynamics(q1, q2, dq1, dq2, P[b])
+            s_q1, c_q1 = _sincos(q1)
+            s_q2, c_q2 = _sincos(q2)
+            r5 = _fivebar_reduced(c_q1, s_q1, c_q2, s_q2, dq1, dq2, Pb)
             d11, d12, d22, b1, b2 = r5[0], r5[1], r5[2], r5[3], r5[4]
         else:
             d11, d12, d22, b1, b2 = FR[b, 11], 0.0, FR[b, 12], 0.0, 0.0
-        f1 = FR[b, 0] * dq1 + (FR[b, 2] + FR[b, 4] * math.exp(-(dq1 / FR[b, 6]) ** 2)) * math.tanh(dq1 / FR[b, 7])
-        f2 = FR[b, 1] * dq2 + (FR[b, 3] + FR[b, 5] * math.exp(-(dq2 / FR[b, 6]) ** 2)) * math.tanh(dq2 / FR[b, 7])
+        f1 = FR[b, 0] * dq1 + (FR[b, 2] + _stribeck(FR[b, 4], dq1 * inv_v_stribeck)) * _tanh(dq1 * inv_v_smooth)
+        f2 = FR[b, 1] * dq2 + (FR[b, 3] + _stribeck(FR[b, 5], dq2 * inv_v_stribeck)) * _tanh(dq2 * inv_v_smooth)
         if FR[b, F_FRIC_EXT] > 0.0:         # asymmetric, LuGre, drifting friction (plant [friction])
             f1 = _joint_friction(b, dt, X, FR, 0, dq1)
             f2 = _joint_friction(b, dt, X, FR, 1, dq2)
@@ -603,8 +673,9 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
                     t1 += pull
                     t2 -= pull
         det = d11 * d22 - d12 * d12
-        a1 = (d22 * t1 - d12 * t2) / det
-        a2 = (-d12 * t1 + d11 * t2) / det
+        inv_det = 1.0 / det
+        a1 = (d22 * t1 - d12 * t2) * inv_det
+        a2 = (-d12 * t1 + d11 * t2) * inv_det
         if not (math.isfinite(a1) and math.isfinite(a2)):
             ABORT[b, 0] = k
             ABORT[b, 1] = ABORT_NONFINITE
@@ -621,6 +692,7 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
         X[b, 2] = q2 + dq2 * dt
         X[b, 3] = dq2
         X[b, 4] += dt
+    RNG[b] = rng
 
 
 # ---------------------------------------------------------------------------------------
@@ -849,9 +921,18 @@ class Twin:
         tt = no_table if torque_table is None else np.ascontiguousarray(torque_table, float)
         tt_period = 1 if table_period is None else max(1, int(round(table_period / self.dt)))
         rec = no_rec if record is None else record
-        kernel = _run_serial if B == 1 else _run
-        kernel(n, self.dt, st.X, st.AS, st.AI, st.C, P, FR, MECH, self.DRV, st.RNG, st.ABORT, tt, tt_period,
-               rec, int(record_every), int(record_offset))
+        if B == 1:
+            _run_serial(n, self.dt, st.X, st.AS, st.AI, st.C, P, FR, MECH, self.DRV, st.RNG, st.ABORT, tt,
+                        tt_period, rec, int(record_every), int(record_offset))
+            return
+        # legs handed out one at a time (a dynamic schedule: legs that abort early finish
+        # early, and a core busy with something else takes fewer)
+        chunk = set_parallel_chunksize(1)
+        try:
+            _run(n, self.dt, st.X, st.AS, st.AI, st.C, P, FR, MECH, self.DRV, st.RNG, st.ABORT, tt, tt_period,
+                 rec, int(record_every), int(record_offset))
+        finally:
+            set_parallel_chunksize(chunk)
 
     def step_batch(self, gains: np.ndarray, step_turns: float = 0.4, duration: float = 1.5,
                    sample_period: float = 0.002, vel_limit: float | None = None,

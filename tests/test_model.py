@@ -117,6 +117,52 @@ def test_gravity_is_gradient_of_potential(leg):
         np.testing.assert_allclose(G, num, rtol=1e-6, atol=1e-9)
 
 
+def test_fivebar_reduced_dynamics_match_the_maximal_coordinate_form(leg):
+    """The twin's kernel takes M, h, G of model (b) from the links' unit vectors and uses
+    M's sparsity: the two generated forms agree, and D, b equal S^T M S, S^T (M a0 + h + G)
+    computed with numpy from the closure's angles."""
+    from leglib import _generated as gen
+    P = M.param_vector(leg)
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        q1, q2 = leg.q1 + rng.uniform(-0.6, 0.6), leg.q2 + rng.uniform(-0.6, 0.6)
+        phi3, phi4 = M._lower_angles(q1, q2, P)
+        v = rng.normal(0.0, 10.0, 4)
+        if math.isnan(phi3):   # outside the assembly mode
+            assert math.isnan(M._fivebar_dynamics(q1, q2, v[0], v[1], P)[0])
+            continue
+        ref = gen.fivebar_terms(q1, q2, phi3, phi4, *v, P)
+        cs = gen.fivebar_terms_cs(*(f(a) for a in (q1, q2, phi3, phi4) for f in (math.cos, math.sin)), *v, P)
+        np.testing.assert_allclose(cs, ref, rtol=1e-12, atol=1e-12)
+        r = M._fivebar_dynamics(q1, q2, v[0], v[1], P)
+        assert r[5] == pytest.approx(phi3, abs=1e-13) and r[6] == pytest.approx(phi4, abs=1e-13)
+        # the reduction onto q: D = S^T M S, b = S^T (M a0 + h + G) with the full 4x4 M
+        # (the kernel uses M's sparsity), S = [I; J], J and a0 from the loop closure
+        Mm = np.reshape(ref[:16], (4, 4))
+        assert np.array_equal(Mm, Mm.T) and np.count_nonzero(Mm - np.diag(np.diag(Mm))) == 4
+        assert Mm[0, 3] != 0.0 and Mm[1, 2] != 0.0
+        A = np.array([[leg.l3 * math.sin(phi3), -leg.l4 * math.sin(phi4)],
+                      [-leg.l3 * math.cos(phi3), leg.l4 * math.cos(phi4)]])       # Phi_phi
+        Bq = np.array([[-leg.l1 * math.sin(q1), leg.l2 * math.sin(q2)],
+                       [leg.l1 * math.cos(q1), -leg.l2 * math.cos(q2)]])           # Phi_q
+        J = -np.linalg.solve(A, Bq)
+        dq = v[:2]
+        dphi = J @ dq
+        assert np.allclose((r[7], r[8]), dphi, rtol=1e-9, atol=1e-12)
+        w = (leg.l1 * np.array([math.cos(q1), math.sin(q1)]) * dq[0] ** 2
+             + leg.l4 * np.array([math.cos(phi4), math.sin(phi4)]) * dphi[1] ** 2
+             - leg.l2 * np.array([math.cos(q2), math.sin(q2)]) * dq[1] ** 2
+             - leg.l3 * np.array([math.cos(phi3), math.sin(phi3)]) * dphi[0] ** 2)
+        a0 = np.concatenate([[0.0, 0.0], np.linalg.solve(A, w)])
+        S = np.vstack([np.eye(2), J])
+        full = np.array(gen.fivebar_terms(q1, q2, phi3, phi4, dq[0], dq[1], *dphi, P))
+        Mm, h, G = np.reshape(full[:16], (4, 4)), full[16:20], full[20:24]
+        D = S.T @ Mm @ S
+        bvec = S.T @ (Mm @ a0 + h + G)
+        np.testing.assert_allclose([r[0], r[1], r[2]], [D[0, 0], D[0, 1], D[1, 1]], rtol=1e-10)
+        np.testing.assert_allclose([r[3], r[4]], bvec, rtol=1e-9, atol=1e-12)
+
+
 def test_simulate_reports_singularity(leg):
     with pytest.raises(ValueError, match="singular"):
         M.simulate(leg, np.linspace(0, 2, 201), [math.radians(250), 0, math.radians(320), 0],

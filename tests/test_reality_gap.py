@@ -32,22 +32,23 @@ def _fp(a) -> str:
 # -- effects off: today's numbers ---------------------------------------------------------
 
 def test_effects_off_give_the_numbers_of_the_kernel_without_them():
-    """Fingerprints of the kernel before the effects existed (commit 038bb46): with every
-    effect off the kernel takes the same path, bit for bit (encoder counts, a five-bar and
+    """Fingerprints of the kernel without the effects (the faster kernel's arithmetic, as of
+    commit 44eb938, which has no effects at all): with every effect off the kernel takes the
+    same path, bit for bit (encoder counts, a five-bar and
     an independent-inertia batch, a device's calibration and step). A deliberate change of
     the kernel's arithmetic must renew them."""
     plant = load_plant("default")
     assert plant.unmodeled == ()
     assert np.all(T.Twin(plant).FR[14:] == 0.0)
     grid = io.thesis_grid()[[0, 57, 133, 261, 399]]
-    assert _fp(T.Twin(seed=3).step_batch(grid)["counts"]) == "8053eee5b9f008c5"
+    assert _fp(T.Twin(seed=3).step_batch(grid)["counts"]) == "b6abda13279abbb3"
     ind = load_plant("default", stribeck1=0.004, payload_mass=0.2).replace(mechanism="independent")
-    assert _fp(T.Twin(ind, seed=5).step_batch(grid[:3])["counts"]) == "383bab6474505484"
+    assert _fp(T.Twin(ind, seed=5).step_batch(grid[:3])["counts"]) == "b0935fe049ecf14a"
     d = io.connect("virtual", seed=4)
     io.apply_configuration(d)
     io.calibrate(d)
     s = io.step_response(d, 40, 0.08, 0.01)
-    assert _fp(np.round(np.degrees(s.q1) * 1e6)) == "c251dcff5e193d90"
+    assert _fp(np.round(np.degrees(s.q1) * 1e6)) == "5d56e19113c70eac"
     assert _fp(d.sim.st.AI[0, :, T.I_COUNTS]) == "20d7f70f65e3b03e"
 
 

@@ -1,0 +1,105 @@
+"""Elementary functions for the twin's tick loop (:mod:`leglib.twin`).
+
+In the tick loop a library call (``math.sin``, ``math.tanh``) costs its own time plus the
+registers it makes the loop spill, and it sits on the loop's critical path (the next tick
+needs the joint angles this one produces). These are inlined instead, with fused
+multiply-adds (``llvm.fma``: one rounding, the same result on every machine) and short
+dependency chains. Each is within a few ulp of the math module's (tests/test_twin.py).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
+
+
+@intrinsic
+def fma(typingctx, a, b, c):
+    """a * b + c with one rounding (llvm.fma.f64)."""
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, signature, args):
+        d = ir.DoubleType()
+        fn = builder.module.declare_intrinsic("llvm.fma", [d], ir.FunctionType(d, [d, d, d]))
+        return builder.call(fn, [context.cast(builder, v, t, types.float64)
+                                 for v, t in zip(args, signature.args)])
+    return sig, codegen
+
+
+# sin, cos: fdlibm's reduction by pi/2 (in two parts, exact for |x| < 1e6) and its kernels,
+# the polynomials evaluated by Estrin's scheme
+_INVPIO2 = 6.36619772367581382433e-01
+_PIO2_1 = 1.57079632673412561417e+00    # the first 33 bits of pi/2
+_PIO2_1T = 6.07710050650619224932e-11   # pi/2 - _PIO2_1
+_S1, _S2, _S3, _S4, _S5, _S6 = (-1.66666666666666324348e-01, 8.33333333332248946124e-03,
+                                -1.98412698298579493134e-04, 2.75573137070700676789e-06,
+                                -2.50507602534068634195e-08, 1.58969099521155010221e-10)
+_C1, _C2, _C3, _C4, _C5, _C6 = (4.16666666666666019037e-02, -1.38888888888741095749e-03,
+                                2.48015872894767294178e-05, -2.75573143513906633035e-07,
+                                2.08757232129817482790e-09, -1.13596475577881948265e-11)
+
+
+@njit(cache=True, inline="always")
+def sincos(x):
+    """(sin x, cos x) for |x| < 1e6 (a joint angle)."""
+    n = math.floor(fma(x, _INVPIO2, 0.5))
+    y = fma(-n, _PIO2_1T, fma(-n, _PIO2_1, x))   # in [-pi/4, pi/4]; the inner one is exact
+    z = y * y
+    z2 = z * z
+    z4 = z2 * z2
+    ps = fma(z4, fma(z, _S6, _S5), fma(z2, fma(z, _S4, _S3), fma(z, _S2, _S1)))
+    pc = fma(z4, fma(z, _C6, _C5), fma(z2, fma(z, _C4, _C3), fma(z, _C2, _C1)))
+    s = fma(y * z, ps, y)
+    hz = 0.5 * z
+    w = 1.0 - hz
+    c = w + fma(z2, pc, (1.0 - w) - hz)
+    quadrant = int(n) & 3
+    if quadrant == 0:
+        return s, c
+    if quadrant == 1:
+        return c, -s
+    if quadrant == 2:
+        return -s, -c
+    return -c, s
+
+
+# tanh: Cephes' rational form below 0.625, else (e - 1) / (e + 1), e = exp(2|x|) by Cephes'
+# Pade form times a power of two (one division either way)
+_LOG2E = 1.4426950408889634073599
+_LN2_HI, _LN2_LO = 6.93145751953125e-1, 1.42860682030941723212e-6
+_EP0, _EP1, _EP2 = 1.26177193074810590878e-4, 3.02994407707441961300e-2, 9.99999999999999999910e-1
+_EQ0, _EQ1, _EQ2, _EQ3 = (3.00198505138664455042e-6, 2.52448340349684104192e-3,
+                          2.27265548208155028766e-1, 2.00000000000000000009e0)
+_TP0, _TP1, _TP2 = -9.64399179425052238628e-1, -9.92877231001918586564e1, -1.61468768441708447952e3
+_TQ0, _TQ1, _TQ2 = 1.12811678491632931402e2, 2.23548839060100448583e3, 4.84406305325125486048e3
+_POW2 = np.array([2.0 ** k for k in range(64)])
+
+
+@njit(cache=True, inline="always")
+def tanh(x):
+    """tanh x (+-1 exactly beyond |x| = 20, as math.tanh)."""
+    a = abs(x)
+    if a < 0.625:
+        z = x * x
+        num = fma(fma(_TP0, z, _TP1), z, _TP2)
+        den = fma(fma(z + _TQ0, z, _TQ1), z, _TQ2)
+        return fma(x * z, num / den, x)
+    if a <= 20.0:
+        # exp(2a) = 2^n (q + p) / (q - p), |r| <= ln2 / 2, n in [2, 58]
+        n = math.floor(fma(2.0 * a, _LOG2E, 0.5))
+        r = fma(-n, _LN2_LO, fma(-n, _LN2_HI, 2.0 * a))
+        rr = r * r
+        p = r * fma(fma(_EP0, rr, _EP1), rr, _EP2)
+        q = fma(fma(fma(_EQ0, rr, _EQ1), rr, _EQ2), rr, _EQ3)
+        num = (q + p) * _POW2[int(n)]
+        t = (num - (q - p)) / (num + (q - p))
+        return t if x > 0.0 else -t
+    if x > 0.0:
+        return 1.0
+    if x < 0.0:
+        return -1.0
+    return x   # NaN
