@@ -434,27 +434,28 @@ def design_summary(rows) -> dict:
 def parse_plants(text: str, name: str = "design_plants") -> list[str]:
     """"all" (every shipped plant) or comma-separated plant names; an unknown name is an
     error naming ``name`` and the known plants."""
-    from .params import plant_names
+    from .params import ParameterError, plant_names
     known = plant_names()
     if not isinstance(text, str) or not text.strip():
-        raise ValueError(f"{name} must be 'all' or comma-separated plant names ({', '.join(known)}), got {text!r}")
+        raise ParameterError(f"{name} must be 'all' or comma-separated plant names ({', '.join(known)}), got {text!r}")
     if text.strip() == "all":
         return list(known)
     out = [p.strip() for p in text.split(",") if p.strip()]
     bad = [p for p in out if p not in known]
     if bad:
-        raise ValueError(f"{name}: unknown plant(s) {bad}; shipped plants: {', '.join(known)}")
+        raise ParameterError(f"{name}: unknown plant(s) {bad}; shipped plants: {', '.join(known)}")
     return out
 
 
 def parse_payloads(text: str, name: str = "design_payloads", high: float = 5.0) -> list[float]:
     """Comma-separated foot payloads [kg] in [0, ``high``]; errors name ``name``."""
+    from .params import ParameterError
     try:
         vals = [float(x) for x in str(text).split(",") if x.strip()]
     except ValueError:
-        raise ValueError(f"{name} must be comma-separated payloads in kg, e.g. '0, 0.3', got {text!r}") from None
+        raise ParameterError(f"{name} must be comma-separated payloads in kg, e.g. '0, 0.3', got {text!r}") from None
     if not vals or not all(math.isfinite(v) and 0.0 <= v <= high for v in vals):
-        raise ValueError(f"{name}: payloads must be finite, in [0, {high:g}] kg, at least one; got {text!r}")
+        raise ParameterError(f"{name}: payloads must be finite, in [0, {high:g}] kg, at least one; got {text!r}")
     return vals
 
 
