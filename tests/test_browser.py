@@ -409,4 +409,6 @@ def test_live_view_redraws_during_a_realtime_step(lab, browser):
     # the sampling keeps its requested 2 ms period (the median: a host that loses the CPU
     # skips a slot now and then, which lowers the mean rate, not the period)
     assert stats["median_period_s"] == pytest.approx(0.002, rel=0.05)
-    assert stats["sample_rate_hz"] > 400
+    # the mean rate only shows that sampling went on throughout: how far a loaded 2-core host
+    # lowers it is a benchmark's matter (make bench liveview_sampling), not this test's
+    assert stats["sample_rate_hz"] > 250
