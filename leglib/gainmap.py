@@ -560,6 +560,26 @@ def model_gains_for(plant: CascadePlant, zeta: float, fn: float, vel_integrator_
     return gains, plant.predict(gains)
 
 
+def twin_step_responses(twin, gains, step=0.4, duration=1.5, sample_period=0.002):
+    """Listing 7.4's steps on a :class:`leglib.twin.Twin` for each gain triple (one batch),
+    as :class:`leglib.odrive_io.StepResponse` with the foot height of the twin's nominal
+    leg; the configuration's step velocity limit, an abort at twice the step."""
+    from .model import foot_position
+    from .odrive_io import StepResponse
+    g = np.atleast_2d(np.asarray(gains, float))
+    out = twin.step_batch(g, step_turns=step, duration=duration, sample_period=sample_period,
+                          vel_limit=twin.config.step_vel_limit, abort_error_turns=2 * abs(step))
+    ax = twin.axes
+    res = []
+    for i in range(len(g)):
+        q1 = ax.counts_to_joint(out["counts"][i, :, ax.axis_of_joint[0]], 0)
+        q2 = ax.counts_to_joint(out["counts"][i, :, ax.axis_of_joint[1]], 1)
+        _, y = foot_position(twin.nominal_leg, q1, q2)
+        res.append(StepResponse(t=out["t"], q1=q1, q2=q2, y=y, gains=tuple(g[i]), step=step,
+                                completed=bool(out["abort_tick"][i] < 0)))
+    return res
+
+
 @dataclass
 class LegPlantModel:
     """The leg as the cascade sees it, from a handful of step responses: the nominal
@@ -589,21 +609,7 @@ class LegPlantModel:
 
     def responses(self, gains):
         """Simulated :class:`leglib.odrive_io.StepResponse` for each gain triple (batch)."""
-        from .odrive_io import StepResponse
-        from .model import foot_position
-        tw = self.twin()
-        g = np.atleast_2d(gains)
-        out = tw.step_batch(g, step_turns=self.step, duration=self.duration, sample_period=self.sample_period,
-                            vel_limit=self.config.step_vel_limit, abort_error_turns=2 * abs(self.step))
-        ax = tw.axes
-        res = []
-        for i in range(len(g)):
-            q1 = ax.counts_to_joint(out["counts"][i, :, ax.axis_of_joint[0]], 0)
-            q2 = ax.counts_to_joint(out["counts"][i, :, ax.axis_of_joint[1]], 1)
-            _, y = foot_position(tw.nominal_leg, q1, q2)
-            res.append(StepResponse(t=out["t"], q1=q1, q2=q2, y=y, gains=tuple(g[i]), step=self.step,
-                                    completed=bool(out["abort_tick"][i] < 0)))
-        return res
+        return twin_step_responses(self.twin(), gains, self.step, self.duration, self.sample_period)
 
     def predict(self, gains) -> tuple[float, float]:
         """(zeta, fn [Hz]) the model predicts for one gain triple (NaN if unstable or not a

@@ -87,24 +87,6 @@ def ideal_sensor_plant(plant):
     return plant.replace(**zero) if zero else plant
 
 
-def _foot_responses(twin, gains, step=0.4, duration=1.5, sample_period=0.002, vel_limit=None):
-    from .model import foot_position
-    from .odrive_io import StepResponse
-    g = np.atleast_2d(np.asarray(gains, float))
-    out = twin.step_batch(g, step_turns=step, duration=duration, sample_period=sample_period,
-                          vel_limit=twin.config.step_vel_limit if vel_limit is None else vel_limit,
-                          abort_error_turns=2 * abs(step))
-    ax = twin.axes
-    res = []
-    for i in range(len(g)):
-        q1 = ax.counts_to_joint(out["counts"][i, :, ax.axis_of_joint[0]], 0)
-        q2 = ax.counts_to_joint(out["counts"][i, :, ax.axis_of_joint[1]], 1)
-        _, y = foot_position(twin.nominal_leg, q1, q2)
-        res.append(StepResponse(t=out["t"], q1=q1, q2=q2, y=y, gains=tuple(g[i]), step=step,
-                                completed=bool(out["abort_tick"][i] < 0)))
-    return res
-
-
 def _measure(dev, gains):
     from . import odrive_io as io
     from .gainmap import identify_response
@@ -177,8 +159,8 @@ def evaluate(plant_name: str, payload: float = 0.0, seed: int = 70, quick: bool 
             t0 = time.perf_counter()
             say(f"{plant_name}: second-order identification")
             gains = GM.fitting_gains(5)
-            ideal = _foot_responses(Twin(ideal_sensor_plant(tw.plant), dev.config, noise=False, quantize=False),
-                                    gains)
+            ideal = GM.twin_step_responses(Twin(ideal_sensor_plant(tw.plant), dev.config, noise=False,
+                                                quantize=False), gains)
             errs, detail, flagged = [], {}, 0
             for g, ref in zip(gains, ideal):
                 p = GM.identify_response(io.step_response(dev, *g))
