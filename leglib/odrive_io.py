@@ -449,6 +449,44 @@ def errors(odrv) -> dict:
     return out
 
 
+_ERROR_ENUMS = {"error": "AxisError", "motor_error": "MotorError", "encoder_error": "EncoderError",
+                "controller_error": "ControllerError"}
+
+
+def describe_errors(errs: dict) -> str:
+    """:func:`errors`' flags as text with the firmware's names, e.g.
+    ``axis0.error = WATCHDOG_TIMER_EXPIRED (0x800)``; "no errors" when none is set. Names
+    come from ``odrive.enums`` (which keeps the 0.5.x enums; ``odrv.error`` is its
+    ``LegacyODriveError``); a bit it does not name is shown in hex."""
+    try:
+        from odrive import enums
+    except Exception:   # the client's native part missing: hex only
+        enums = None
+
+    def flags(value: int, enum_name: str) -> str:
+        enum = getattr(enums, enum_name, None) if enums is not None else None
+        names = []
+        if enum is not None:
+            known = 0
+            for member in sorted(enum, key=lambda m: m.value):
+                if member.value and value & member.value == member.value and member.value & (member.value - 1) == 0:
+                    names.append(member.name)
+                    known |= member.value
+            if value & ~known:
+                names.append(f"0x{value & ~known:x}")
+        return f"{'|'.join(names) or hex(value)} (0x{value:x})"
+
+    parts = []
+    if errs.get("odrv"):
+        parts.append(f"odrv.error = {flags(int(errs['odrv']), 'LegacyODriveError')}")
+    for a in (0, 1):
+        for key, value in (errs.get(f"axis{a}") or {}).items():
+            if value:
+                where = f"axis{a}.error" if key == "error" else f"axis{a}.{key.replace('_error', '')}.error"
+                parts.append(f"{where} = {flags(int(value), _ERROR_ENUMS.get(key, ''))}")
+    return ", ".join(parts) or "no errors"
+
+
 def _any_error(dev: Device) -> bool:
     e = errors(dev)
     return bool(e["odrv"]) or any(v for a in (0, 1) for v in e[f"axis{a}"].values())
@@ -772,7 +810,7 @@ def _prepare_closed_loop(dev: Device, vel_limit: float, watchdog: float | None) 
     if watchdog is not None and not (math.isfinite(watchdog) and watchdog > 0):
         raise ValueError(f"watchdog must be a positive timeout [s] or None, got {watchdog!r}")
     if _any_error(dev):
-        raise ExperimentError(f"an earlier fault is still flagged ({errors(dev)}); inspect it, then call "
+        raise ExperimentError(f"an earlier fault is still flagged ({describe_errors(errors(dev))}); inspect it, then call "
                               f"leglib.odrive_io.clear_errors(odrv)")
     for a in (0, 1):
         if not (bool(dev.get(a, "is_calibrated")) and bool(dev.get(a, "is_ready"))):
@@ -893,10 +931,10 @@ def _step_usb(dev: Device, gains, step, duration, sample_period, vel_limit, abor
                 reason = "oscillation not decaying (growing or sustained)"
                 break
             if dropped is not None:
-                reason = f"axis{dropped} dropped out of closed loop ({errors(dev)})"
+                reason = f"axis{dropped} dropped out of closed loop ({describe_errors(errors(dev))})"
                 break
         if reason is None and _any_error(dev):
-            reason = f"firmware error during the step ({errors(dev)})"
+            reason = f"firmware error during the step ({describe_errors(errors(dev))})"
         if reason is None and len(ts) < 2:
             reason = "fewer than two samples were taken"
     t = np.asarray(ts)
@@ -1320,7 +1358,7 @@ def torque_loop(odrv, policy, duration: float, period: float | None = None,
         for a in (0, 1):
             dev.set(a, "input_torque", 0.0)
         if _any_error(dev):
-            raise ExperimentError(f"a firmware error was raised during the run: {errors(dev)}")
+            raise ExperimentError(f"a firmware error was raised during the run: {describe_errors(errors(dev))}")
     t = np.asarray(ts)
     rate = (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 else float("nan")
     return TorqueRun(t=t, q1=ax.counts_to_joint(np.asarray(c1), 0), q2=ax.counts_to_joint(np.asarray(c2), 1),

@@ -17,6 +17,7 @@ import socket
 import subprocess
 import sys
 import time
+import warnings
 import urllib.request
 from pathlib import Path
 
@@ -400,11 +401,21 @@ def test_live_view_redraws_during_a_realtime_step(lab, browser):
         "    r = io.step_response(dev, 50, 0.046, 0.001, duration=3.0, on_sample=view.on_sample)\n"
         "import numpy as np\n"
         "run_stats = {'samples': len(r.t), 'sample_rate_hz': r.meta['sample_rate_hz'], 'completed': r.completed,\n"
-        "             'median_period_s': float(np.median(np.diff(r.t)))}"),
+        "             'abort_reason': r.abort_reason, 'median_period_s': float(np.median(np.diff(r.t))),\n"
+        "             'max_gap_s': float(np.max(np.diff(r.t)))}"),
         result)
     seen, stats = _watch_live_view(browser, lab, path, result)
     assert len(seen) >= 3, f"the live view changed {len(seen)} times during a 3 s realtime step"
-    assert stats["completed"] and stats["dropped"] == 0
+    assert stats["dropped"] == 0
+    if not stats["completed"]:
+        # the one acceptable abort: the host lost the CPU for longer than the step's 0.5 s
+        # watchdog (a loaded machine); the device -- and the twin -- then disarm the motors
+        # (fail-safe), which is what must have happened
+        assert "WATCHDOG_TIMER_EXPIRED" in (stats["abort_reason"] or "") and stats["max_gap_s"] >= 0.45, \
+            f"the realtime step aborted: {stats['abort_reason']} (longest sample gap {stats['max_gap_s']:.3f} s)"
+        warnings.warn(f"the host stalled {stats['max_gap_s']:.2f} s during the realtime step; the watchdog "
+                      f"disarmed the motors as on the device")
+        return
     assert stats["received"] >= stats["samples"] > 1000
     # the sampling keeps its requested 2 ms period (the median: a host that loses the CPU
     # skips a slot now and then, which lowers the mean rate, not the period)

@@ -1,6 +1,7 @@
 """The I/O layer on the twin: the flows of Listings 7.1-7.4, safety, fault injection."""
 
 import hashlib
+import time
 
 import numpy as np
 import pytest
@@ -335,6 +336,37 @@ def test_a_step_with_a_firmware_error_is_not_completed(dev, realtime):
     assert not r.completed and r.abort_reason
     assert int(dev.raw.error) & V.ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT
     assert _idle(dev)
+
+
+def test_a_host_stall_longer_than_the_watchdog_disarms_the_realtime_step(dev):
+    """axis.cpp:171-182: the device runs on while the host stalls; a stall longer than the
+    step's 0.5 s watchdog trips WATCHDOG_TIMER_EXPIRED, the axes drop to IDLE, and the
+    response is not completed, with a reason naming the flag."""
+    dev.sim.set_realtime(True)
+    stalled = []
+
+    def stall_once(sample):
+        if sample["t"] > 0.2 and not stalled:
+            stalled.append(sample["t"])
+            time.sleep(0.7)
+    r = io.step_response(dev, *STABLE, duration=1.0, settle=0.1, on_sample=stall_once)
+    dev.sim.set_realtime(False)
+    assert stalled and not r.completed
+    assert "WATCHDOG_TIMER_EXPIRED" in r.abort_reason and "dropped out of closed loop" in r.abort_reason
+    assert np.max(np.diff(r.t)) >= 0.7
+    assert _idle(dev)
+
+
+def test_describe_errors_names_the_firmware_flags():
+    errs = {"odrv": V.ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT,
+            "axis0": {"error": V.AXIS_ERROR_WATCHDOG_TIMER_EXPIRED | V.AXIS_ERROR_MOTOR_FAILED,
+                      "motor_error": T.MOTOR_ERROR_SYSTEM_LEVEL, "encoder_error": 0, "controller_error": 0},
+            "axis1": {"error": 0, "motor_error": 0, "encoder_error": 0, "controller_error": 0}}
+    text = io.describe_errors(errs)
+    assert text == ("odrv.error = DC_BUS_OVER_REGEN_CURRENT (0x8), "
+                    "axis0.error = MOTOR_FAILED|WATCHDOG_TIMER_EXPIRED (0x840), "
+                    "axis0.motor.error = SYSTEM_LEVEL (0x1000000)")
+    assert io.describe_errors({"odrv": None, "axis0": {"error": 0}, "axis1": {"error": 0}}) == "no errors"
 
 
 def test_live_view_hook_keeps_the_requested_rate_on_the_realtime_twin(dev):
