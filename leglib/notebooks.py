@@ -10,6 +10,7 @@ widget view (:func:`add_widget_snapshots`).
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 from pathlib import Path
 
@@ -39,6 +40,76 @@ def _kernel_env(**env):
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
+
+
+ENGINE = "leglib"
+# a cell whose kernel went idle (IOPub ``status: idle`` for it: the kernel has finished it
+# and sent its reply) without the reply reaching the client for this long counts as done
+LOST_REPLY_GRACE_S = 20.0
+
+
+def _register_engine() -> None:
+    """Papermill's nbclient engine with one change (:data:`ENGINE`): a cell whose
+    ``execute_reply`` never arrives although the kernel reported it finished is completed
+    from what the kernel published for it (its outputs, an error output if it raised),
+    with a warning, instead of waiting out the cell timeout. Seen with ipykernel 6 under
+    heavy load: the kernel idle and answering, its reply for the cell not received."""
+    import asyncio
+    import datetime
+    import time
+    import warnings
+
+    from papermill.clientwrap import PapermillNotebookClient
+    from papermill.engines import NBClientEngine, papermill_engines
+    from papermill.utils import merge_kwargs, remove_args
+
+    if ENGINE in papermill_engines._engines:
+        return
+
+    class Client(PapermillNotebookClient):
+        async def _async_poll_for_reply(self, msg_id, cell, timeout, task_poll_output_msg, task_poll_kernel_alive):
+            wait_reply = asyncio.ensure_future(super()._async_poll_for_reply(
+                msg_id, cell, timeout, task_poll_output_msg, task_poll_kernel_alive))
+            idle_since = None
+            while True:
+                done, _ = await asyncio.wait({wait_reply}, timeout=1.0)
+                if done:
+                    return wait_reply.result()
+                finished = task_poll_output_msg.done() and not task_poll_output_msg.cancelled() \
+                    and task_poll_output_msg.exception() is None
+                if not finished:
+                    continue
+                idle_since = idle_since or time.monotonic()
+                if time.monotonic() - idle_since < LOST_REPLY_GRACE_S:
+                    continue
+                wait_reply.cancel()
+                task_poll_kernel_alive.cancel()
+                errors = [o for o in cell.get("outputs", []) if o.get("output_type") == "error"]
+                warnings.warn(f"cell {cell.get('execution_count')}: the kernel finished it but its reply did "
+                              f"not arrive within {LOST_REPLY_GRACE_S:.0f} s; completed from its outputs",
+                              RuntimeWarning, stacklevel=1)
+                content = {"status": "error" if errors else "ok", "execution_count": cell.get("execution_count")}
+                if errors:
+                    content.update(ename=errors[-1].get("ename"), evalue=errors[-1].get("evalue"),
+                                   traceback=errors[-1].get("traceback", []))
+                return {"parent_header": {"msg_id": msg_id}, "content": content, "metadata": {},
+                        "header": {"msg_type": "execute_reply",
+                                   "date": datetime.datetime.now(datetime.timezone.utc)}}
+
+    class Engine(NBClientEngine):
+        @classmethod
+        def execute_managed_notebook(cls, nb_man, kernel_name, log_output=False, stdout_file=None,
+                                     stderr_file=None, start_timeout=60, execution_timeout=None, **kwargs):
+            # as NBClientEngine.execute_managed_notebook (papermill 2.7), with Client
+            kwargs = remove_args(["input_path"], **kwargs)
+            safe_kwargs = remove_args(["timeout", "startup_timeout"], **kwargs)
+            final_kwargs = merge_kwargs(safe_kwargs, timeout=execution_timeout or kwargs.get("timeout"),
+                                        startup_timeout=start_timeout, kernel_name=kernel_name,
+                                        log=logging.getLogger("papermill"), log_output=log_output,
+                                        stdout_file=stdout_file, stderr_file=stderr_file)
+            return Client(nb_man, **final_kwargs).execute()
+
+    papermill_engines.register(ENGINE, Engine)
 
 
 def execute(notebook: str | Path, out_dir: str | Path, parameters: dict | None = None,
@@ -73,9 +144,11 @@ def execute(notebook: str | Path, out_dir: str | Path, parameters: dict | None =
               "metrics_path": str(out_dir / "metrics" / f"{notebook.stem}.json")}
     params.update(parameters or {})
     out = out_dir / notebook.name
+    _register_engine()
     with _kernel_env(MPLBACKEND=INLINE_BACKEND):
         pm.execute_notebook(str(notebook), str(out), parameters=params, cwd=str(REPO),
-                            progress_bar=progress, kernel_name="python3", execution_timeout=timeout)
+                            progress_bar=progress, kernel_name="python3", execution_timeout=timeout,
+                            engine_name=ENGINE)
     nb = nbformat.read(str(out), as_version=4)
     if add_widget_snapshots(nb):
         nbformat.write(nb, str(out))
@@ -142,11 +215,65 @@ def to_html(executed: Path) -> Path:
     return path
 
 
-def run_all(out_dir: str | Path = "reports", smoke: bool = False) -> list[Path]:
-    """Execute every numbered notebook against the virtual leg (``make run``)."""
+# which notebooks read what another one writes under make run's defaults: 03 designs on
+# the friction 02 identified (data/processed/friction_identified.json), 05 validates the
+# map of 04's sweep (data/raw/sweep_thesis_grid); the rest are independent
+DEPENDS_ON = {"03": ("02",), "05": ("04",)}
+
+
+def _number(path: Path) -> str:
+    return Path(path).name[:2]
+
+
+def run_order(paths: list[Path]) -> list[Path]:
+    """The order a pool takes the notebooks in: ones that others wait for first (the
+    critical path), then by number."""
+    needed = {d for deps in DEPENDS_ON.values() for d in deps}
+    return sorted(paths, key=lambda p: (_number(p) not in needed, _number(p)))
+
+
+def run_all(out_dir: str | Path = "reports", smoke: bool = False, workers: int | None = None) -> list[Path]:
+    """Execute every numbered notebook against the virtual leg (``make run``).
+
+    Notebooks run in ``workers`` processes at once (default: the cores present, at most
+    2: each kernel also runs the twin's compiled kernel on its threads); a notebook
+    starts only when the ones it reads from (:data:`DEPENDS_ON`) are done. Returns the
+    executed notebooks in number order; a failure stops the run (the first failing
+    notebook's error is raised after the others in flight finish).
+    """
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
     from tqdm.auto import tqdm
 
-    done = []
-    for nb in tqdm(notebook_paths(), desc="notebooks", unit="nb"):
-        done.append(execute(nb, out_dir, {"smoke": smoke}))
-    return done
+    paths = notebook_paths()
+    if workers is None:
+        workers = max(1, min(2, os.cpu_count() or 1))
+    if not isinstance(workers, int) or isinstance(workers, bool) or workers < 1:
+        raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    by_number = {_number(p): p for p in paths}
+    done: dict[str, Path] = {}
+    waiting = run_order(paths)
+    error = None
+    with tqdm(total=len(paths), desc="notebooks", unit="nb") as bar, \
+            ProcessPoolExecutor(max_workers=workers) as pool:
+        running = {}
+        while waiting or running:
+            if error is None:
+                for p in list(waiting):
+                    deps = [d for d in DEPENDS_ON.get(_number(p), ()) if d in by_number]
+                    if len(running) < workers and all(d in done for d in deps):
+                        waiting.remove(p)
+                        running[pool.submit(execute, p, out_dir, {"smoke": smoke})] = p
+            elif not running:
+                break
+            finished, _ = wait(running, return_when=FIRST_COMPLETED)
+            for f in finished:
+                p = running.pop(f)
+                try:
+                    done[_number(p)] = f.result()
+                except Exception as exc:   # the first failure is raised once the others end
+                    error = error or exc
+                bar.update(1)
+    if error is not None:
+        raise error
+    return [done[_number(p)] for p in paths]

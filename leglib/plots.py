@@ -385,21 +385,49 @@ def save_animation(anim, path, fps: float | None = None) -> "Path":
 
 
 def show_animation(anim, figures_dir=None, name: str | None = None):
-    """The animation as a self-contained HTML player (``to_jshtml``: PNG frames embedded,
-    no ffmpeg needed) for a notebook's output; its figure is closed so the notebook does not
-    show a still copy too. With ``figures_dir`` and ``name`` a GIF
-    (``<figures_dir>/<name>.gif``) is written as well.
+    """The animation as a self-contained HTML player (as ``anim.to_jshtml()``: PNG frames
+    embedded, no ffmpeg needed) for a notebook's output; its figure is closed so the
+    notebook does not show a still copy too. With ``figures_dir`` and ``name`` a GIF
+    (``<figures_dir>/<name>.gif``) is written as well, from the same frames (each frame is
+    drawn once).
 
     Returns
     -------
     IPython.display.HTML
     """
+    import base64
+    import io
+    import tempfile
+    from pathlib import Path
+
     import matplotlib.pyplot as plt
     from IPython.display import HTML
-    html = HTML(anim.to_jshtml())
+    from matplotlib.animation import HTMLWriter
+    from PIL import Image
+
+    frames = []
+
+    class Writer(HTMLWriter):
+        def grab_frame(self, **savefig_kwargs):
+            super().grab_frame(**savefig_kwargs)
+            saved = getattr(self, "_saved_frames", None)   # the base64 PNGs it embeds
+            if saved is not None and len(saved) > len(frames):
+                frames.append(Image.open(io.BytesIO(base64.b64decode(saved[-1]))))
+
+    fps = 1000.0 / anim._interval
+    with tempfile.TemporaryDirectory() as tmp:
+        page = Path(tmp) / "animation.html"
+        anim.save(str(page), writer=Writer(fps=fps, embed_frames=True,
+                                           default_mode="loop" if getattr(anim, "_repeat", False) else "once"))
+        html = HTML(page.read_text())
     if figures_dir is not None and name:
-        from pathlib import Path
-        save_animation(anim, Path(figures_dir) / f"{name}.gif")
+        gif = Path(figures_dir) / f"{name}.gif"
+        if frames:
+            gif.parent.mkdir(parents=True, exist_ok=True)
+            frames[0].save(gif, save_all=True, append_images=frames[1:], duration=int(1000 / max(1, round(fps))),
+                           loop=0)
+        else:   # a matplotlib whose HTML writer keeps its frames elsewhere: draw them again
+            save_animation(anim, gif)
     plt.close(anim.figure)
     return html
 

@@ -76,6 +76,9 @@ def test_exports_without_ffmpeg(leg, tmp_path):
     with Image.open(gif) as im:
         assert im.n_frames == 30
     shown = plots.show_animation(anim, tmp_path, "shown")
-    assert "<script" in shown.data and (tmp_path / "shown.gif").exists()
+    assert "<script" in shown.data and shown.data.count("data:image/png;base64") == 30
+    with Image.open(tmp_path / "shown.gif") as im:    # the same 30 frames, drawn once
+        assert im.n_frames == 30 and im.size == Image.open(gif).size
+        assert im.info["duration"] == Image.open(gif).info["duration"]
     assert not plt.fignum_exists(anim.figure.number)          # no still copy left open
     plt.close("all")

@@ -243,3 +243,46 @@ def test_03_starts_from_a_saved_design(processed, tmp_path):
     assert m["eig_K_max_rel_error"] < 1e-6
     # and saved again as it was loaded
     assert designs.same(designs.load(tmp_path / "processed" / "design_03_thesis.json"), saved)
+
+
+def _notebook_with_cells(path, cells):
+    nb = nbformat.v4.new_notebook(cells=[nbformat.v4.new_code_cell(c) for c in cells])
+    nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
+    nbformat.write(nb, str(path))
+    return path
+
+
+# a cell that makes the kernel drop its own execute_reply (the kernel finishes the cell and
+# reports idle on IOPub; the reply never reaches the client)
+_DROP_REPLY = (
+    "_k = get_ipython().kernel\n_send = _k.session.send\n"
+    "def _drop_once(stream, msg, *a, **kw):\n"
+    "    if msg == 'execute_reply' and not getattr(_k, '_dropped', False):\n"
+    "        _k._dropped = True\n        return None\n"
+    "    return _send(stream, msg, *a, **kw)\n"
+    "_k.session.send = _drop_once\n")
+
+
+def test_a_lost_reply_completes_the_cell_from_its_outputs(tmp_path, monkeypatch):
+    """The kernel finished a cell (IOPub idle) but its reply is lost: execute completes the
+    cell from its outputs after LOST_REPLY_GRACE_S, with a warning, and runs on."""
+    from leglib import notebooks
+    monkeypatch.setattr(notebooks, "LOST_REPLY_GRACE_S", 2.0)
+    path = _notebook_with_cells(tmp_path / "lost.ipynb", [_DROP_REPLY + "print('first')", "print('second')"])
+    with pytest.warns(RuntimeWarning, match="reply did not arrive"):
+        out = execute(path, tmp_path / "out", parameters={}, html=False, timeout=120)
+    nb = nbformat.read(str(out), as_version=4)
+    texts = ["".join(o.get("text", "")) for c in nb.cells for o in c.outputs]
+    assert texts == ["first\n", "second\n"]
+
+
+def test_a_lost_reply_of_a_failing_cell_still_fails(tmp_path, monkeypatch):
+    from papermill.exceptions import PapermillExecutionError
+
+    from leglib import notebooks
+    monkeypatch.setattr(notebooks, "LOST_REPLY_GRACE_S", 2.0)
+    path = _notebook_with_cells(tmp_path / "lost_err.ipynb",
+                                [_DROP_REPLY + "raise KeyError('boom')", "print('not reached')"])
+    with pytest.warns(RuntimeWarning, match="reply did not arrive"), \
+            pytest.raises(PapermillExecutionError, match="boom"):
+        execute(path, tmp_path / "out", parameters={}, html=False, timeout=120)
