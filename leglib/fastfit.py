@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange, set_parallel_chunksize
 
 # status codes of one response (their messages: _error)
 OK, SHORT, NONFINITE, NOT_INCREASING, FLAT, NOT_STEP, ZETA_BOUND, LOW_R2, NO_DECAY = range(9)
@@ -546,6 +546,19 @@ def _fit_packed(t, y, bounds, out, status):
         status[k] = _fit_one(t[a:b], y[a:b], out[k])
 
 
+@njit(cache=True, parallel=True)
+def _fit_packed_parallel(t, y, bounds, out, status):
+    """:func:`_fit_packed` on the cores present (each response is fitted alone: the
+    same numbers)."""
+    for k in prange(bounds.size - 1):
+        a, b = bounds[k], bounds[k + 1]
+        status[k] = _fit_one(t[a:b], y[a:b], out[k])
+
+
+# below this many responses one thread fits them (the thread pool costs more than it gives)
+PARALLEL_FROM = 16
+
+
 # ---------------------------------------------------------------------------------------
 # the Python side
 # ---------------------------------------------------------------------------------------
@@ -572,7 +585,15 @@ def fit_packed(ts, ys):
     y = np.concatenate([np.asarray(x, dtype=float) for x in ys]) if len(ys) else np.empty(0)
     out = np.empty((sizes.size, N_OUT))
     status = np.empty(sizes.size, dtype=np.int64)
-    _fit_packed(t, y, bounds, out, status)
+    if sizes.size < PARALLEL_FROM:
+        _fit_packed(t, y, bounds, out, status)
+    else:
+        # responses handed out a few at a time: their fits differ in cost
+        chunk = set_parallel_chunksize(4)
+        try:
+            _fit_packed_parallel(t, y, bounds, out, status)
+        finally:
+            set_parallel_chunksize(chunk)
     return status, out
 
 

@@ -70,8 +70,13 @@ def _cases():
     return ts, ys
 
 
-def test_batch_equals_single_fits_and_errors():
+@pytest.mark.parametrize("parallel_from", [10 ** 9, 1])
+def test_batch_equals_single_fits_and_errors(parallel_from, monkeypatch):
+    """One thread or the thread pool (a batch of PARALLEL_FROM or more): each response's
+    fit is that of the response alone, bit for bit."""
+    monkeypatch.setattr(F, "PARALLEL_FROM", parallel_from)
     ts, ys = _cases()
+    ts, ys = ts * 3, ys * 3
     batch = F.identify_batch(ts, ys)
     assert len(batch) == len(ts)
     for t, y, b in zip(ts, ys, batch):
