@@ -384,6 +384,28 @@ def bench_twin_unmodeled_effects():
             "cpu_ratio": on["cpu_median_s"] / off["cpu_median_s"], "points": len(grid)}
 
 
+def bench_make_run():
+    """``make run``'s notebooks: ``python -m leglib run`` into a temporary directory, each
+    run a new process as make's (target <= 55 s: half of the 1 min 50 s it took before the
+    notebooks ran two at a time)."""
+    import shutil
+    import subprocess
+    import tempfile
+
+    runs = []
+    for _ in range(3):
+        out = tempfile.mkdtemp(prefix="bench_make_run_")
+        try:
+            t0 = time.perf_counter()
+            subprocess.run([sys.executable, "-m", "leglib", "run", "--out", out], check=True,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            runs.append(time.perf_counter() - t0)
+        finally:
+            shutil.rmtree(out, ignore_errors=True)
+    return {"median_s": statistics.median(runs), "min_s": min(runs), "max_s": max(runs), "runs": len(runs),
+            "target_s": 55.0}
+
+
 BENCHMARKS = {name[6:]: fn for name, fn in globals().items() if name.startswith("bench_")}
 
 
