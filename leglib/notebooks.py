@@ -237,9 +237,10 @@ def run_all(out_dir: str | Path = "reports", smoke: bool = False, workers: int |
 
     Notebooks run in ``workers`` processes at once (default: the cores present, at most
     2: each kernel also runs the twin's compiled kernel on its threads); a notebook
-    starts only when the ones it reads from (:data:`DEPENDS_ON`) are done. Returns the
-    executed notebooks in number order; a failure stops the run (the first failing
-    notebook's error is raised after the others in flight finish).
+    starts only when the ones it reads from (:data:`DEPENDS_ON`) are done. When one fails,
+    the others still run, except those that read from it; then the first failure is
+    raised, with notes naming its notebook and the ones skipped. Returns the executed
+    notebooks in number order.
     """
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
@@ -252,28 +253,42 @@ def run_all(out_dir: str | Path = "reports", smoke: bool = False, workers: int |
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
     by_number = {_number(p): p for p in paths}
     done: dict[str, Path] = {}
+    failed: set = set()
+    skipped: list[Path] = []
     waiting = run_order(paths)
     error = None
     with tqdm(total=len(paths), desc="notebooks", unit="nb") as bar, \
             ProcessPoolExecutor(max_workers=workers) as pool:
         running = {}
         while waiting or running:
-            if error is None:
-                for p in list(waiting):
-                    deps = [d for d in DEPENDS_ON.get(_number(p), ()) if d in by_number]
-                    if len(running) < workers and all(d in done for d in deps):
-                        waiting.remove(p)
-                        running[pool.submit(execute, p, out_dir, {"smoke": smoke})] = p
-            elif not running:
-                break
+            for p in list(waiting):
+                deps = [d for d in DEPENDS_ON.get(_number(p), ()) if d in by_number]
+                if any(d in failed for d in deps):
+                    waiting.remove(p)
+                    failed.add(_number(p))
+                    skipped.append(p)
+                    bar.update(1)
+                elif len(running) < workers and all(d in done for d in deps):
+                    waiting.remove(p)
+                    running[pool.submit(execute, p, out_dir, {"smoke": smoke})] = p
+            if not running:
+                if waiting:   # nothing can start and nothing runs: DEPENDS_ON has a cycle
+                    raise RuntimeError(f"notebooks {[p.name for p in waiting]} wait for each other "
+                                       f"(leglib.notebooks.DEPENDS_ON)")
+                continue
             finished, _ = wait(running, return_when=FIRST_COMPLETED)
             for f in finished:
                 p = running.pop(f)
                 try:
                     done[_number(p)] = f.result()
-                except Exception as exc:   # the first failure is raised once the others end
+                except Exception as exc:
+                    exc.add_note(f"while executing {p} (its executed copy: {Path(out_dir) / p.name})")
+                    failed.add(_number(p))
                     error = error or exc
                 bar.update(1)
     if error is not None:
+        if skipped:
+            error.add_note("not run, as they read from a failed notebook: "
+                           + ", ".join(p.name for p in skipped))
         raise error
     return [done[_number(p)] for p in paths]

@@ -286,3 +286,54 @@ def test_a_lost_reply_of_a_failing_cell_still_fails(tmp_path, monkeypatch):
     with pytest.warns(RuntimeWarning, match="reply did not arrive"), \
             pytest.raises(PapermillExecutionError, match="boom"):
         execute(path, tmp_path / "out", parameters={}, html=False, timeout=120)
+
+
+def _fake_execute(notebook, out_dir, parameters):
+    """Stands in for notebooks.execute in run_all's pool: records when it ran."""
+    import time as _time
+    from pathlib import Path as _Path
+    t0 = _time.monotonic()
+    _time.sleep(0.3)
+    if _Path(notebook).name.startswith("03"):
+        raise ValueError("cell 2 failed")
+    (_Path(out_dir) / f"{_Path(notebook).stem}.times").write_text(f"{t0} {_time.monotonic()}")
+    return _Path(out_dir) / _Path(notebook).name
+
+
+def test_run_all_runs_two_at_a_time_along_the_dependencies(tmp_path, monkeypatch):
+    """make run: notebooks in two processes, 03 only after 02, 05 only after 04; a failing
+    notebook is raised naming it, after every notebook not reading from it ran."""
+    from leglib import notebooks
+    names = ["01_a.ipynb", "02_b.ipynb", "03_c.ipynb", "04_d.ipynb", "05_e.ipynb"]
+    monkeypatch.setattr(notebooks, "notebook_paths", lambda: [tmp_path / n for n in names])
+    monkeypatch.setattr(notebooks, "execute", _fake_execute)
+    with pytest.raises(ValueError, match="cell 2 failed") as err:
+        notebooks.run_all(tmp_path, workers=2)
+    assert any("03_c.ipynb" in n for n in getattr(err.value, "__notes__", []))
+    assert not any("not run" in n for n in err.value.__notes__)   # nothing reads from 03
+    times = {p.stem[:2]: tuple(map(float, p.read_text().split())) for p in tmp_path.glob("*.times")}
+    assert set(times) == {"01", "02", "04", "05"}          # all but the failing one ran
+    assert times["05"][0] >= times["04"][1]                 # 05 waited for 04
+    overlap = min(times["02"][1], times["04"][1]) - max(times["02"][0], times["04"][0])
+    assert overlap > 0.1                                    # two at a time
+    with pytest.raises(ValueError, match="workers"):
+        notebooks.run_all(tmp_path, workers=0)
+
+
+def _fake_execute_02_fails(notebook, out_dir, parameters):
+    from pathlib import Path as _Path
+    if _Path(notebook).name.startswith("02"):
+        raise ValueError("02 failed")
+    (_Path(out_dir) / f"{_Path(notebook).stem}.ran").write_text("")
+    return _Path(out_dir) / _Path(notebook).name
+
+
+def test_run_all_skips_what_reads_from_a_failed_notebook(tmp_path, monkeypatch):
+    from leglib import notebooks
+    names = ["01_a.ipynb", "02_b.ipynb", "03_c.ipynb", "04_d.ipynb", "05_e.ipynb"]
+    monkeypatch.setattr(notebooks, "notebook_paths", lambda: [tmp_path / n for n in names])
+    monkeypatch.setattr(notebooks, "execute", _fake_execute_02_fails)
+    with pytest.raises(ValueError, match="02 failed") as err:
+        notebooks.run_all(tmp_path, workers=2)
+    assert sorted(p.stem[:2] for p in tmp_path.glob("*.ran")) == ["01", "04", "05"]
+    assert any("not run" in n and "03_c.ipynb" in n for n in err.value.__notes__)
