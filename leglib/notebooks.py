@@ -43,22 +43,31 @@ def _kernel_env(**env):
 
 
 ENGINE = "leglib"
-# a cell whose kernel went idle (IOPub ``status: idle`` for it: the kernel has finished it
-# and sent its reply) without the reply reaching the client for this long counts as done
-LOST_REPLY_GRACE_S = 20.0
+# while a cell's reply is awaited, the kernel's shell queue is probed this often: a probe
+# answered before the cell's reply means the kernel finished the cell and its reply was
+# lost (a kernel answers shell requests in order, one at a time)
+PROBE_EVERY_S = 10.0
+# after a lost reply is detected, outputs still in flight get this long to arrive
+LOST_REPLY_GRACE_S = 5.0
 
 
 def _register_engine() -> None:
     """Papermill's nbclient engine with one change (:data:`ENGINE`): a cell whose
-    ``execute_reply`` never arrives although the kernel reported it finished is completed
-    from what the kernel published for it (its outputs, an error output if it raised),
-    with a warning, instead of waiting out the cell timeout. Seen with ipykernel 6 under
-    heavy load: the kernel idle and answering, its reply for the cell not received."""
+    ``execute_reply`` is lost is completed from what the kernel published for it (its
+    outputs; an error output fails the notebook as before), with a warning, instead of
+    waiting out the cell timeout.
+
+    Seen with ipykernel 6 under heavy load: the kernel idle and answering, the reply for
+    its last cell never received. While a reply is awaited, a ``kernel_info_request``
+    goes to the kernel's shell every :data:`PROBE_EVERY_S`; the kernel answers shell
+    requests in order, so a probe answered first means the cell is done and its reply
+    lost."""
     import asyncio
     import datetime
     import time
     import warnings
 
+    from nbclient.util import ensure_async
     from papermill.clientwrap import PapermillNotebookClient
     from papermill.engines import NBClientEngine, papermill_engines
     from papermill.utils import merge_kwargs, remove_args
@@ -68,26 +77,43 @@ def _register_engine() -> None:
 
     class Client(PapermillNotebookClient):
         async def _async_poll_for_reply(self, msg_id, cell, timeout, task_poll_output_msg, task_poll_kernel_alive):
+            channel = self.kc.shell_channel
+            seen: set = set()   # parent ids of every shell message the reply loop receives
+            if not getattr(channel, "_leglib_spy", False):
+                receive = channel.get_msg
+
+                async def get_msg(*args, **kwargs):
+                    msg = await ensure_async(receive(*args, **kwargs))
+                    channel._leglib_seen.add(msg.get("parent_header", {}).get("msg_id"))
+                    return msg
+                channel.get_msg, channel._leglib_spy = get_msg, True
+            channel._leglib_seen = seen
             wait_reply = asyncio.ensure_future(super()._async_poll_for_reply(
                 msg_id, cell, timeout, task_poll_output_msg, task_poll_kernel_alive))
-            idle_since = None
+            probes, next_probe = [], time.monotonic() + PROBE_EVERY_S
             while True:
-                done, _ = await asyncio.wait({wait_reply}, timeout=1.0)
+                done, _ = await asyncio.wait({wait_reply}, timeout=0.5)
                 if done:
                     return wait_reply.result()
-                finished = task_poll_output_msg.done() and not task_poll_output_msg.cancelled() \
-                    and task_poll_output_msg.exception() is None
-                if not finished:
+                if not any(p in seen for p in probes):
+                    if time.monotonic() >= next_probe:
+                        probes.append(self.kc.kernel_info())
+                        next_probe = time.monotonic() + PROBE_EVERY_S
                     continue
-                idle_since = idle_since or time.monotonic()
-                if time.monotonic() - idle_since < LOST_REPLY_GRACE_S:
-                    continue
+                # the kernel answered a later request first: our reply is lost
+                if not task_poll_output_msg.done():
+                    try:   # outputs (and the idle status) still in flight
+                        await asyncio.wait_for(asyncio.shield(task_poll_output_msg), LOST_REPLY_GRACE_S)
+                    except (asyncio.TimeoutError, Exception):
+                        pass
+                if wait_reply.done():
+                    return wait_reply.result()
                 wait_reply.cancel()
+                task_poll_output_msg.cancel()
                 task_poll_kernel_alive.cancel()
                 errors = [o for o in cell.get("outputs", []) if o.get("output_type") == "error"]
-                warnings.warn(f"cell {cell.get('execution_count')}: the kernel finished it but its reply did "
-                              f"not arrive within {LOST_REPLY_GRACE_S:.0f} s; completed from its outputs",
-                              RuntimeWarning, stacklevel=1)
+                warnings.warn(f"cell {cell.get('execution_count')}: the kernel finished it but its reply was "
+                              f"lost; completed from its outputs", RuntimeWarning, stacklevel=1)
                 content = {"status": "error" if errors else "ok", "execution_count": cell.get("execution_count")}
                 if errors:
                     content.update(ename=errors[-1].get("ename"), evalue=errors[-1].get("evalue"),
