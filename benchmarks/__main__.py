@@ -186,6 +186,48 @@ def bench_thesis_pipeline_files():
         shutil.rmtree(root, ignore_errors=True)
 
 
+def bench_pipeline_parts():
+    """Where the thesis-grid pipeline's time goes: io.sweep to files (the twin's kernel
+    and the writing), GainMap.from_measurements (reading, foot heights, identification,
+    the map) and gains_for (the fine grid, the inverse); medians of 3, each part also as
+    this process's CPU time."""
+    import shutil
+    import tempfile
+
+    from leglib import gainmap as GM
+    from leglib import odrive_io as io
+    dev = _device(11)
+    grid = io.thesis_grid()
+    root = Path(tempfile.mkdtemp(prefix="bench_parts_"))
+    parts = {"sweep": [], "from_measurements": [], "gains_for": []}
+    try:
+        for i in range(4):   # the first run warms up
+            out = root / f"sweep{i}"
+            times = []
+            for name, fn in (("sweep", lambda: io.sweep(dev, grid, out, progress=False)),
+                             ("from_measurements", lambda: GM.GainMap.from_measurements(out)),
+                             ("gains_for", None)):
+                c0, t0 = time.process_time(), time.perf_counter()
+                if name == "gains_for":
+                    gm.gains_for(0.24, 5.0)
+                else:
+                    value = fn()
+                    if name == "from_measurements":
+                        gm = value
+                times.append((name, time.perf_counter() - t0, time.process_time() - c0))
+            if i:
+                for name, wall, cpu in times:
+                    parts[name].append((wall, cpu))
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+    med = {k: (statistics.median(w for w, _ in v), statistics.median(c for _, c in v)) for k, v in parts.items()}
+    print("      " + ", ".join(f"{k} {w * 1e3:.0f} ms (cpu {c * 1e3:.0f})" for k, (w, c) in med.items()))
+    total = [sum(parts[k][i][0] for k in parts) for i in range(3)]
+    return {"median_s": statistics.median(total), "min_s": min(total), "max_s": max(total), "runs": 3,
+            "target_s": None, "parts_median_s": {k: w for k, (w, _) in med.items()},
+            "parts_cpu_median_s": {k: c for k, (_, c) in med.items()}}
+
+
 def bench_sweep_map_pipeline():
     """The thesis grid on the twin end to end, in memory: 400 step simulations, 400
     identifications (one compiled batch), the map with gap filling and interpolation, one
