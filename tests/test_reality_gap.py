@@ -18,7 +18,7 @@ from leglib import fibre_device, gainmap
 from leglib import odrive_io as io
 from leglib import twin as T
 from leglib import virtual_odrive as V
-from leglib.model import energy, foot_position
+from leglib.model import energy
 from leglib.params import PARAMS_DIR, ParameterError, load_odrive_config, load_plant, plant_names
 
 MISMATCHED = ("belt", "cogging", "lugre", "bench")
@@ -499,17 +499,7 @@ TARGET_GAINS = [(50, 0.023, 0.01), (55, 0.023, 0.01), (50, 0.026, 0.01), (55, 0.
 
 
 def _identified(plant, gains, seed=1):
-    tw = T.Twin(plant, seed=seed)
-    g = np.atleast_2d(gains)
-    out = tw.step_batch(g, vel_limit=tw.config.step_vel_limit, abort_error_turns=0.8)
-    ax = tw.axes
-    res = []
-    for i in range(len(g)):
-        q1 = ax.counts_to_joint(out["counts"][i, :, ax.axis_of_joint[0]], 0)
-        q2 = ax.counts_to_joint(out["counts"][i, :, ax.axis_of_joint[1]], 1)
-        _, y = foot_position(tw.nominal_leg, q1, q2)
-        res.append(io.StepResponse(t=out["t"], q1=q1, q2=q2, y=y, gains=tuple(g[i]), step=0.4,
-                                   completed=bool(out["abort_tick"][i] < 0)))
+    res = gainmap.twin_step_responses(T.Twin(plant, seed=seed), gains)
     return res, gainmap.identify_many(res)
 
 
