@@ -229,3 +229,14 @@ def test_fine_grid_interpolants_equal_regular_grid_interpolator(shape):
         exact = {"solver": spsolve} if method == "cubic" else {}
         ref = RegularGridInterpolator(active, field, method=method, **exact)(mesh)
         np.testing.assert_allclose(ours, ref, rtol=0, atol=1e-10 * np.abs(field).max())
+
+
+def test_predict_is_the_fine_grids_interpolant_and_refuses_gains_off_the_grid(synthetic):
+    f = synthetic.fine()
+    for idx in [(0, 0, 0), (7, 13, 21), (30, 45, 39), (12, 30, 5)]:
+        g = [f["axes"][k][idx[k]] for k in range(3)]
+        z, fn = synthetic.predict(g)
+        assert z == pytest.approx(f["zeta"][idx], rel=1e-12) and fn == pytest.approx(f["fn"][idx], rel=1e-12)
+    lo = synthetic.axes[1][0]
+    with pytest.raises(ValueError, match="vel_gain .* outside the map's grid"):
+        synthetic.predict((30.0, lo / 2, 0.01))
