@@ -162,7 +162,8 @@ def bench_numpy_single_axis():
 def bench_thesis_pipeline_files():
     """The thesis grid through the user path: 400 twin steps written as measurement files
     (odrive_io.sweep), GainMap.from_measurements (read, foot height, identify, map), one
-    inverse query (target: the numpy loop of one axis, about 0.19 s)."""
+    inverse query (target: the numpy loop of one axis, about 0.19 s). Also where the time
+    goes: each part's median, wall and this process's CPU time."""
     import shutil
     import tempfile
 
@@ -172,59 +173,33 @@ def bench_thesis_pipeline_files():
     grid = io.thesis_grid()
     root = Path(tempfile.mkdtemp(prefix="bench_sweep_"))
     runs = iter(range(1 << 30))
+    parts = []   # per run: {part: (wall, cpu)}
+
+    def part(record, name, fn):
+        c0, t0 = time.process_time(), time.perf_counter()
+        value = fn()
+        record[name] = (time.perf_counter() - t0, time.process_time() - c0)
+        return value
 
     def run():
         # each run into a new directory, all removed at the end: deleting the previous
         # run's 2000 files just before a run makes its file creation slow on filesystems
         # that skip recently freed inodes (ext4 without a journal), a cost of the clean-up
         out = root / f"sweep{next(runs)}"
-        io.sweep(dev, grid, out, progress=False)
-        GM.GainMap.from_measurements(out).gains_for(0.24, 5.0)
+        record = {}
+        part(record, "sweep", lambda: io.sweep(dev, grid, out, progress=False))
+        gm = part(record, "from_measurements", lambda: GM.GainMap.from_measurements(out))
+        part(record, "gains_for", lambda: gm.gains_for(0.24, 5.0))
+        parts.append(record)
     try:
-        return {**timed(run, repeat=3), "target_s": 0.19, "points": len(grid)}
+        res = timed(run, repeat=3)
     finally:
         shutil.rmtree(root, ignore_errors=True)
-
-
-def bench_pipeline_parts():
-    """Where the thesis-grid pipeline's time goes: io.sweep to files (the twin's kernel
-    and the writing), GainMap.from_measurements (reading, foot heights, identification,
-    the map) and gains_for (the fine grid, the inverse); medians of 3, each part also as
-    this process's CPU time."""
-    import shutil
-    import tempfile
-
-    from leglib import gainmap as GM
-    from leglib import odrive_io as io
-    dev = _device(11)
-    grid = io.thesis_grid()
-    root = Path(tempfile.mkdtemp(prefix="bench_parts_"))
-    parts = {"sweep": [], "from_measurements": [], "gains_for": []}
-    try:
-        for i in range(4):   # the first run warms up
-            out = root / f"sweep{i}"
-            times = []
-            for name, fn in (("sweep", lambda: io.sweep(dev, grid, out, progress=False)),
-                             ("from_measurements", lambda: GM.GainMap.from_measurements(out)),
-                             ("gains_for", None)):
-                c0, t0 = time.process_time(), time.perf_counter()
-                if name == "gains_for":
-                    gm.gains_for(0.24, 5.0)
-                else:
-                    value = fn()
-                    if name == "from_measurements":
-                        gm = value
-                times.append((name, time.perf_counter() - t0, time.process_time() - c0))
-            if i:
-                for name, wall, cpu in times:
-                    parts[name].append((wall, cpu))
-    finally:
-        shutil.rmtree(root, ignore_errors=True)
-    med = {k: (statistics.median(w for w, _ in v), statistics.median(c for _, c in v)) for k, v in parts.items()}
+    measured = parts[1:]   # without the warm-up
+    med = {k: tuple(statistics.median(r[k][i] for r in measured) for i in (0, 1)) for k in measured[0]}
     print("      " + ", ".join(f"{k} {w * 1e3:.0f} ms (cpu {c * 1e3:.0f})" for k, (w, c) in med.items()))
-    total = [sum(parts[k][i][0] for k in parts) for i in range(3)]
-    return {"median_s": statistics.median(total), "min_s": min(total), "max_s": max(total), "runs": 3,
-            "target_s": None, "parts_median_s": {k: w for k, (w, _) in med.items()},
+    return {**res, "target_s": 0.19, "points": len(grid),
+            "parts_median_s": {k: w for k, (w, _) in med.items()},
             "parts_cpu_median_s": {k: c for k, (_, c) in med.items()}}
 
 
