@@ -43,6 +43,7 @@ def _kernel_env(**env):
 
 
 ENGINE = "leglib"
+_ENGINE_REGISTERED = False
 # while a cell's reply is awaited, the kernel's shell queue is probed this often: a probe
 # answered before the cell's reply means the kernel finished the cell and its reply was
 # lost (a kernel answers shell requests in order, one at a time)
@@ -72,7 +73,8 @@ def _register_engine() -> None:
     from papermill.engines import NBClientEngine, papermill_engines
     from papermill.utils import merge_kwargs, remove_args
 
-    if ENGINE in papermill_engines._engines:
+    global _ENGINE_REGISTERED
+    if _ENGINE_REGISTERED:
         return
 
     class Client(PapermillNotebookClient):
@@ -136,6 +138,7 @@ def _register_engine() -> None:
             return Client(nb_man, **final_kwargs).execute()
 
     papermill_engines.register(ENGINE, Engine)
+    _ENGINE_REGISTERED = True
 
 
 def execute(notebook: str | Path, out_dir: str | Path, parameters: dict | None = None,
