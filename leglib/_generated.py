@@ -128,7 +128,7 @@ def fivebar_energy(q1, q2, phi3, phi4, dq1, dq2, dphi3, dphi4, P):
     return ((1/2)*I3*x0 + (1/2)*I4*x1 + (1/2)*lc1**2*m1*x2 + (1/2)*lc2**2*m2*x3 + (1/2)*m3*(2*dphi3*dq2*l2*lc3*math.cos(phi3 - q2) + l2**2*x3 + lc3**2*x0) + (1/2)*m4*(2*dphi4*dq1*l1*lc4*math.cos(phi4 - q1) + l1**2*x2 + lc4**2*x1) + (1/2)*x2*(I1 + Jd1) + (1/2)*x3*(I2 + Jd2), g*(lc1*m1*x4 + lc2*m2*x5 + m3*(l2*x5 + lc3*math.sin(phi3)) + m4*(l1*x4 + lc4*math.sin(phi4))),)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def fivebar_terms_cs(c1, s1, c2, s2, c3, s3, c4, s4, dq1, dq2, dphi3, dphi4, P):
     """Model (b) as ``fivebar_terms``, in the unit vectors (c, s) of q1, q2, phi3, phi4 (no trigonometric call)."""
     l1 = P[0]

@@ -162,9 +162,12 @@ def derive_fivebar() -> Derivation:
 # Code generation
 # ---------------------------------------------------------------------------------------
 
-def _function_source(name: str, args: list[sp.Symbol], exprs: list[sp.Expr], doc: str) -> str:
+def _function_source(name: str, args: list[sp.Symbol], exprs: list[sp.Expr], doc: str,
+                     inline: bool = False) -> str:
+    """``inline``: numba inlines the function into its callers (a kernel's loop over legs
+    that calls it can then vectorize)."""
     used = set().union(*(e.free_symbols for e in exprs))
-    lines = [f"@njit(cache=True)", f"def {name}({', '.join(str(a) for a in args)}, P):",
+    lines = ['@njit(cache=True, inline="always")' if inline else "@njit(cache=True)", f"def {name}({', '.join(str(a) for a in args)}, P):",
              f'    """{doc}"""']
     for i, pname in enumerate(PARAM_NAMES):
         if sp.Symbol(pname, positive=True) in used:
@@ -225,7 +228,7 @@ def generate_source() -> str:
         _function_source("fivebar_terms_cs", list(_unit_symbols()) + list(b.dq),
                          [_in_unit_vectors(e, b.q) for e in list(b.D) + list(b.h) + list(b.G)],
                          "Model (b) as ``fivebar_terms``, in the unit vectors (c, s) of "
-                         "q1, q2, phi3, phi4 (no trigonometric call)."),
+                         "q1, q2, phi3, phi4 (no trigonometric call).", inline=True),
     ]
     return "\n\n".join(parts)
 

@@ -4,14 +4,14 @@ In the tick loop a library call (``math.sin``, ``math.tanh``) costs its own time
 registers it makes the loop spill, and it sits on the loop's critical path (the next tick
 needs the joint angles this one produces). These are inlined instead, with fused
 multiply-adds (``llvm.fma``: one rounding, the same result on every machine) and short
-dependency chains. Each is within a few ulp of the math module's (tests/test_twin.py).
+dependency chains, and without branches (selects instead), so that a loop over legs that
+calls them vectorizes. Each is within a few ulp of the math module's (tests/test_twin.py).
 """
 
 from __future__ import annotations
 
 import math
 
-import numpy as np
 from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
@@ -27,6 +27,20 @@ def fma(typingctx, a, b, c):
         fn = builder.module.declare_intrinsic("llvm.fma", [d], ir.FunctionType(d, [d, d, d]))
         return builder.call(fn, [context.cast(builder, v, t, types.float64)
                                  for v, t in zip(args, signature.args)])
+    return sig, codegen
+
+
+@intrinsic
+def pow2(typingctx, n):
+    """2.0 ** n for an integral float ``n`` in [-1022, 1023], its exponent bits set directly
+    (no table: a table lookup keeps a loop over legs from vectorizing)."""
+    sig = types.float64(types.float64)
+
+    def codegen(context, builder, signature, args):
+        i64 = ir.IntType(64)
+        k = builder.fptosi(args[0], i64)
+        bits = builder.shl(builder.add(k, ir.Constant(i64, 1023)), ir.Constant(i64, 52))
+        return builder.bitcast(bits, ir.DoubleType())
     return sig, codegen
 
 
@@ -57,14 +71,14 @@ def sincos(x):
     hz = 0.5 * z
     w = 1.0 - hz
     c = w + fma(z2, pc, (1.0 - w) - hz)
-    quadrant = int(n) & 3
-    if quadrant == 0:
-        return s, c
-    if quadrant == 1:
-        return c, -s
-    if quadrant == 2:
-        return -s, -c
-    return -c, s
+    # the quadrant by selects, not branches: a loop over legs calling this vectorizes
+    quadrant = n - 4.0 * math.floor(0.25 * n)   # 0, 1, 2 or 3, exactly
+    odd = quadrant == 1.0 or quadrant == 3.0
+    so = c if odd else s
+    co = s if odd else c
+    so = -so if quadrant >= 2.0 else so
+    co = -co if (quadrant == 1.0 or quadrant == 2.0) else co
+    return so, co
 
 
 # tanh: Cephes' rational form below 0.625, else (e - 1) / (e + 1), e = exp(2|x|) by Cephes'
@@ -76,30 +90,26 @@ _EQ0, _EQ1, _EQ2, _EQ3 = (3.00198505138664455042e-6, 2.52448340349684104192e-3,
                           2.27265548208155028766e-1, 2.00000000000000000009e0)
 _TP0, _TP1, _TP2 = -9.64399179425052238628e-1, -9.92877231001918586564e1, -1.61468768441708447952e3
 _TQ0, _TQ1, _TQ2 = 1.12811678491632931402e2, 2.23548839060100448583e3, 4.84406305325125486048e3
-_POW2 = np.array([2.0 ** k for k in range(64)])
 
 
 @njit(cache=True, inline="always")
 def tanh(x):
-    """tanh x (+-1 exactly beyond |x| = 20, as math.tanh)."""
+    """tanh x (+-1 exactly beyond |x| = 20, as math.tanh). Both forms are evaluated and one
+    selected (no branch: a loop over legs calling this vectorizes)."""
     a = abs(x)
-    if a < 0.625:
-        z = x * x
-        num = fma(fma(_TP0, z, _TP1), z, _TP2)
-        den = fma(fma(z + _TQ0, z, _TQ1), z, _TQ2)
-        return fma(x * z, num / den, x)
-    if a <= 20.0:
-        # exp(2a) = 2^n (q + p) / (q - p), |r| <= ln2 / 2, n in [2, 58]
-        n = math.floor(fma(2.0 * a, _LOG2E, 0.5))
-        r = fma(-n, _LN2_LO, fma(-n, _LN2_HI, 2.0 * a))
-        rr = r * r
-        p = r * fma(fma(_EP0, rr, _EP1), rr, _EP2)
-        q = fma(fma(fma(_EQ0, rr, _EQ1), rr, _EQ2), rr, _EQ3)
-        num = (q + p) * _POW2[int(n)]
-        t = (num - (q - p)) / (num + (q - p))
-        return t if x > 0.0 else -t
-    if x > 0.0:
-        return 1.0
-    if x < 0.0:
-        return -1.0
-    return x   # NaN
+    z = x * x
+    num = fma(fma(_TP0, z, _TP1), z, _TP2)
+    den = fma(fma(z + _TQ0, z, _TQ1), z, _TQ2)
+    small = fma(x * z, num / den, x)
+    # exp(2a) = 2^n (q + p) / (q - p), |r| <= ln2 / 2, n in [0, 58] (a clamped to 20, NaN too)
+    ac = a if a <= 20.0 else 20.0
+    n = math.floor(fma(2.0 * ac, _LOG2E, 0.5))
+    r = fma(-n, _LN2_LO, fma(-n, _LN2_HI, 2.0 * ac))
+    rr = r * r
+    p = r * fma(fma(_EP0, rr, _EP1), rr, _EP2)
+    q = fma(fma(fma(_EQ0, rr, _EQ1), rr, _EQ2), rr, _EQ3)
+    e = (q + p) * pow2(n)
+    t = (e - (q - p)) / (e + (q - p))
+    mid = t if x > 0.0 else -t
+    big = 1.0 if x > 0.0 else (-1.0 if x < 0.0 else x)   # x itself: NaN
+    return small if a < 0.625 else (mid if a <= 20.0 else big)

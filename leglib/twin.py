@@ -13,7 +13,10 @@ their own inertias, sub-stepped when stiff, the encoders on the rotors), cogging
 encoder reading error, and LuGre, direction-dependent and drifting friction.
 
 A single experiment is a batch of one and a sweep a batch of many; both go through the same
-kernel, so they give identical numbers. :class:`Twin` holds the batch state and exposes
+kernel, so they give identical numbers. Each thread advances a block of legs tick by tick:
+the controllers leg by leg, then the block's mechanics in one loop over its legs, which the
+compiler vectorizes when the legs share a plant without the unmodeled effects (the same
+operations in the same order: the numbers do not depend on the block). :class:`Twin` holds the batch state and exposes
 ``advance`` and the whole-experiment runners; :mod:`leglib.virtual_odrive` puts the ODrive
 object tree on top of a batch of one.
 """
@@ -24,7 +27,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange, set_parallel_chunksize
+from numba import get_num_threads, njit, prange, set_parallel_chunksize
 
 from .drive import AxisMap
 from .kernelmath import sincos as _sincos
@@ -87,6 +90,8 @@ N_X = 13
  F_COG_A3, F_COG_P1, F_COG_P2, F_COG_P3, F_ENC_ON, F_ENC_A1, F_ENC_P1, F_ENC_A2, F_ENC_P2, F_FRIC_EXT,
  F_LUGRE_S0, F_LUGRE_S1, F_ASYM, F_DRIFT, F_DRIFT_TRAVEL) = range(14, 38)
 N_FR = 38
+# the most legs a thread advances together (see _run_block): their state stays in the L1 cache
+MAX_BLOCK = 16
 # a compliant belt is sub-stepped so that its mode advances at most this many radians a step
 BELT_PHASE_PER_STEP = 0.3
 # leglib's own abort codes (ABORT[b, 1])
@@ -327,7 +332,7 @@ def _joint_friction(b, dt, X, FR, j, v):
 
 @njit(cache=True, parallel=True)
 def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC, rec_every,
-         rec_offset):
+         rec_offset, block):
     """Advance every leg of the batch by ``n_ticks`` ticks of ``dt`` seconds.
 
     X[b] = (q1, dq1, q2, dq2, t, phi1, dphi1, phi2, dphi2, z1, z2, travel1, travel2) (the
@@ -341,22 +346,24 @@ def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
     pairs, phase resistance [ohm]); TT[b, i, axis] a torque table applied
     to axes in torque mode, row i = tick // tt_period (ignored when it has no rows);
     REC[b, k] = (t, counts0, counts1, Iq0, Iq1) every ``rec_every`` ticks from row
-    ``rec_offset``. Returns nothing; everything is updated in place.
+    ``rec_offset``. The legs go in blocks of ``block``, a thread's unit of work (see
+    :func:`_run_block`). Returns nothing; everything is updated in place.
     """
     B = X.shape[0]
-    for b in prange(B):
-        _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC,
-                 rec_every, rec_offset)
+    for blk in prange((B + block - 1) // block):
+        _run_block(blk * block, min(B, (blk + 1) * block), n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV,
+                   RNG, ABORT, TT, tt_period, REC, rec_every, rec_offset)
 
 
 @njit(cache=True)
 def _run_serial(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC, rec_every,
-                rec_offset):
+                rec_offset, block):
     """:func:`_run` without the thread pool: cheaper per call for a batch of one (a host loop
     advancing the virtual device a few ticks per USB transaction). Same numbers."""
-    for b in range(X.shape[0]):
-        _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC,
-                 rec_every, rec_offset)
+    B = X.shape[0]
+    for b0 in range(0, B, block):
+        _run_block(b0, min(B, b0 + block), n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT,
+                   tt_period, REC, rec_every, rec_offset)
 
 
 @njit(cache=True, inline="always")
@@ -368,9 +375,138 @@ def _param_row(P, b):
 
 
 @njit(cache=True)
-def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC, rec_every,
-             rec_offset):
-    """Leg ``b`` of :func:`_run`."""
+def _plain_block(b0, b1, P, FR, MECH):
+    """Whether legs b0..b1-1 share one plain plant (see :func:`_mechanics_plain`)."""
+    for b in range(b0, b1):
+        if MECH[b] != 0 or FR[b, F_BELT_K] > 0.0 or FR[b, F_COG_ON] > 0.0 or FR[b, F_FRIC_EXT] > 0.0:
+            return False
+        if FR[b, 4] != 0.0 or FR[b, 5] != 0.0:
+            return False
+        for n in range(P.shape[1]):
+            if P[b, n] != P[b0, n]:
+                return False
+        for n in range(FR.shape[1]):
+            if FR[b, n] != FR[b0, n]:
+                return False
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def _mechanics_plain(dt, QS, TAU, DEAD, NF, P, FR):
+    """One tick of the mechanics of a block of legs that share one plain plant (the exact
+    five-bar, rigid belts, tanh friction without a Stribeck term, no cogging): the
+    operations of :func:`_mechanics_leg` in the same order, written with selects instead of
+    branches so that this loop over the legs vectorizes; the numbers are identical. QS =
+    (q1, dq1, q2, dq2, t) by leg; a dead leg (DEAD) keeps its state; NF[i] = 1 where the
+    accelerations came out non-finite (the caller stops the leg)."""
+    Pb = _param_row(P, 0)
+    visc1, visc2, coul1, coul2 = FR[0, 0], FR[0, 1], FR[0, 2], FR[0, 3]
+    strib1, strib2 = 0.0 * FR[0, 4], 0.0 * FR[0, 5]     # what _stribeck gives without one
+    inv_v_smooth = 1.0 / FR[0, 7]
+    gap_min, k_stop, c_stop, gap_max = FR[0, 8], FR[0, 9], FR[0, 10], FR[0, 13]
+    Q1, DQ1, Q2, DQ2, TT = QS[0], QS[1], QS[2], QS[3], QS[4]
+    TAU1, TAU2 = TAU[0], TAU[1]
+    for i in range(QS.shape[1]):
+        q1, dq1, q2, dq2, t = Q1[i], DQ1[i], Q2[i], DQ2[i], TT[i]
+        s_q1, c_q1 = _sincos(q1)
+        s_q2, c_q2 = _sincos(q2)
+        r5 = _fivebar_reduced(c_q1, s_q1, c_q2, s_q2, dq1, dq2, Pb)
+        d11, d12, d22, b1, b2 = r5[0], r5[1], r5[2], r5[3], r5[4]
+        f1 = visc1 * dq1 + (coul1 + strib1) * _tanh(dq1 * inv_v_smooth)
+        f2 = visc2 * dq2 + (coul2 + strib2) * _tanh(dq2 * inv_v_smooth)
+        t1 = TAU1[i] - b1 - f1
+        t2 = TAU2[i] - b2 - f2
+        gap = q2 - q1
+        push = k_stop * (gap_min - gap) - c_stop * (dq2 - dq1)
+        pull = k_stop * (gap - gap_max) + c_stop * (dq2 - dq1)
+        pushing = (gap < gap_min) & (push > 0.0)
+        pulling = (not (gap < gap_min)) & (gap > gap_max) & (pull > 0.0)
+        t1 = (t1 - push) if pushing else ((t1 + pull) if pulling else t1)
+        t2 = (t2 + push) if pushing else ((t2 - pull) if pulling else t2)
+        det = d11 * d22 - d12 * d12
+        inv_det = 1.0 / det
+        a1 = (d22 * t1 - d12 * t2) * inv_det
+        a2 = (-d12 * t1 + d11 * t2) * inv_det
+        alive = DEAD[i] == 0
+        ok = math.isfinite(a1) & math.isfinite(a2)
+        NF[i] = 1 if (alive & (not ok)) else 0
+        go = alive & ok
+        dq1n = dq1 + a1 * dt
+        dq2n = dq2 + a2 * dt
+        Q1[i] = (q1 + dq1n * dt) if go else q1
+        DQ1[i] = dq1n if go else dq1
+        Q2[i] = (q2 + dq2n * dt) if go else q2
+        DQ2[i] = dq2n if go else dq2
+        TT[i] = (t + dt) if go else t
+
+
+@njit(cache=True)
+def _mechanics_leg(b, k, dt, X, AI, FR, MECH, DRV, ABORT, P, tau, tm, inv_v_stribeck, inv_v_smooth):
+    """One tick of leg ``b``'s mechanics, any plant (the belt, cogging and friction effects,
+    independent inertias), ``tau`` the motor torques on the joint side; X updated in place.
+    True when the accelerations were not finite (the leg is stopped: ABORT, axes IDLE)."""
+    if FR[b, F_COG_ON] > 0.0:           # cogging on the rotors (plant [cogging])
+        _add_cogging(b, X, FR, DRV, tau)
+    if FR[b, F_BELT_K] > 0.0:           # compliant belt: the joints get the belt's torques
+        _belt_split(b, X, FR, tau, tm)
+    q1, dq1, q2, dq2 = X[b, 0], X[b, 1], X[b, 2], X[b, 3]
+    if MECH[b] == 0:
+        s_q1, c_q1 = _sincos(q1)
+        s_q2, c_q2 = _sincos(q2)
+        r5 = _fivebar_reduced(c_q1, s_q1, c_q2, s_q2, dq1, dq2, P[b])
+        d11, d12, d22, b1, b2 = r5[0], r5[1], r5[2], r5[3], r5[4]
+    else:
+        d11, d12, d22, b1, b2 = FR[b, 11], 0.0, FR[b, 12], 0.0, 0.0
+    f1 = FR[b, 0] * dq1 + (FR[b, 2] + _stribeck(FR[b, 4], dq1 * inv_v_stribeck)) * _tanh(dq1 * inv_v_smooth)
+    f2 = FR[b, 1] * dq2 + (FR[b, 3] + _stribeck(FR[b, 5], dq2 * inv_v_stribeck)) * _tanh(dq2 * inv_v_smooth)
+    if FR[b, F_FRIC_EXT] > 0.0:         # asymmetric, LuGre, drifting friction (plant [friction])
+        f1 = _joint_friction(b, dt, X, FR, 0, dq1)
+        f2 = _joint_friction(b, dt, X, FR, 1, dq2)
+    t1 = tau[0] - b1 - f1
+    t2 = tau[1] - b2 - f2
+    if MECH[b] == 0:
+        gap = q2 - q1
+        if gap < FR[b, 8]:
+            push = FR[b, 9] * (FR[b, 8] - gap) - FR[b, 10] * (dq2 - dq1)
+            if push > 0.0:
+                t1 -= push
+                t2 += push
+        elif gap > FR[b, 13]:
+            pull = FR[b, 9] * (gap - FR[b, 13]) + FR[b, 10] * (dq2 - dq1)
+            if pull > 0.0:
+                t1 += pull
+                t2 -= pull
+    det = d11 * d22 - d12 * d12
+    inv_det = 1.0 / det
+    a1 = (d22 * t1 - d12 * t2) * inv_det
+    a2 = (-d12 * t1 + d11 * t2) * inv_det
+    if not (math.isfinite(a1) and math.isfinite(a2)):
+        ABORT[b, 0] = k
+        ABORT[b, 1] = ABORT_NONFINITE
+        for a in range(2):
+            AI[b, a, I_MODE] = MODE_IDLE
+        return True
+    if FR[b, F_BELT_K] > 0.0:           # compliant belt: joints and rotors advance together
+        _belt_advance(b, dt, X, FR, tm, tau, a1, a2, d11, d12, d22)
+        return False
+    dq1 += a1 * dt
+    dq2 += a2 * dt
+    X[b, 0] = q1 + dq1 * dt
+    X[b, 1] = dq1
+    X[b, 2] = q2 + dq2 * dt
+    X[b, 3] = dq2
+    X[b, 4] += dt
+    return False
+
+
+@njit(cache=True)
+def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC,
+               rec_every, rec_offset):
+    """Legs b0..b1-1 of :func:`_run`, tick by tick: each tick the controller of every leg
+    (the firmware's loop), then the block's mechanics (one loop over the legs that
+    vectorizes when they share a plain plant, else leg by leg). A leg's numbers do not
+    depend on the block it is in."""
+    nb = b1 - b0
     N = DRV[0]
     cpr = DRV[1]
     dirn = DRV[2]
@@ -380,319 +516,310 @@ def _run_leg(b, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
     n_tab = TT.shape[1]
     n_rec = REC.shape[1]
     two_pi = 2.0 * math.pi
-    Pb = _param_row(P, b)
-    rng = RNG[b]
-    # per-call invariants (the host changes C only between calls): the current loop's
-    # discrete pole, and reciprocals (a division in the tick loop is on its critical path)
-    # (per axis in arrays: a select between two reciprocals would be folded back into a
-    # division)
-    alpha_ax, inv_kt_ax = np.empty(2), np.empty(2)
-    for a in range(2):
-        alpha_ax[a] = 1.0 - math.exp(-C[b, a, C_CURRENT_BW] * dt)
-        inv_kt_ax[a] = 1.0 / C[b, a, C_KT]
     turns_per_rad = N / two_pi
     inv_cpr = 1.0 / cpr
-    inv_vbus, inv_brake_r = 1.0 / C[b, 0, C_VBUS], 1.0 / C[b, 0, C_BRAKE_R]
-    inv_v_stribeck, inv_v_smooth = 1.0 / FR[b, 6], 1.0 / FR[b, 7]
-    tau = np.zeros(2)
-    tm = np.zeros(2)   # the motor torques on the rotors (compliant belt)
+    # per-call invariants by leg (the host changes C only between calls): the current
+    # loop's discrete pole, and reciprocals (a division in the tick loop is costly)
+    ALPHA, INV_KT = np.empty((nb, 2)), np.empty((nb, 2))
+    INV_VBUS, INV_BRAKE_R = np.empty(nb), np.empty(nb)
+    INV_VS, INV_VSM = np.empty(nb), np.empty(nb)
+    QS = np.empty((5, nb))     # (q1, dq1, q2, dq2, t) of each leg during the call
+    DEAD = np.zeros(nb, np.int64)
+    NF = np.zeros(nb, np.int64)
+    RNGL = np.empty(nb, np.uint64)
+    TAU = np.zeros((2, nb))    # the motor torques on the joint side, by joint
+    TM = np.zeros((nb, 2))     # the motor torques on the rotors (compliant belt)
+    for i in range(nb):
+        b = b0 + i
+        for a in range(2):
+            ALPHA[i, a] = 1.0 - math.exp(-C[b, a, C_CURRENT_BW] * dt)
+            INV_KT[i, a] = 1.0 / C[b, a, C_KT]
+        INV_VBUS[i], INV_BRAKE_R[i] = 1.0 / C[b, 0, C_VBUS], 1.0 / C[b, 0, C_BRAKE_R]
+        INV_VS[i], INV_VSM[i] = 1.0 / FR[b, 6], 1.0 / FR[b, 7]
+        for n in range(5):
+            QS[n, i] = X[b, n]
+        DEAD[i] = 1 if ABORT[b, 1] == ABORT_NONFINITE else 0
+        RNGL[i] = RNG[b]
+    plain = _plain_block(b0, b1, P, FR, MECH)
+    P_plain = P[b0:b0 + 1]
+    FR_plain = FR[b0:b0 + 1]
     next_rec = 0 if rec_every > 0 else -1   # the next tick recorded (no modulo per tick)
     for k in range(n_ticks):
-        if ABORT[b, 1] == ABORT_NONFINITE:
-            break
-        # ---- record (before the tick, so row 0 is the initial state)
+        rec_row = -1
         if k == next_rec:
             next_rec += rec_every
-            r = rec_offset + k // rec_every
-            if r < n_rec:
-                REC[b, r, 0] = X[b, 4]
-                REC[b, r, 1] = AS[b, 0, S_COUNT_F]
-                REC[b, r, 2] = AS[b, 1, S_COUNT_F]
-                REC[b, r, 3] = AS[b, 0, S_IQ_MEAS]
-                REC[b, r, 4] = AS[b, 1, S_IQ_MEAS]
-        abort_now = False
-        abort_code = ABORT_NONE
-        # ---- the board's checks first (main.cpp:413-420): axis checks and the watchdog,
-        # in every state; a failed check disarms the motor
-        for a in range(2):
-            if C[b, a, C_WD_ENABLE] > 0.0:
-                # axis.cpp:171-182: counts down while enabled, IDLE included; at 0 the
-                # error is set (and stays set while the watchdog is not fed)
-                if AS[b, a, S_WD_TIMER] > 0.0:
-                    AS[b, a, S_WD_TIMER] -= 1.0
+            rec_row = rec_offset + k // rec_every
+        for i in range(nb):
+            if DEAD[i] != 0:
+                continue
+            b = b0 + i
+            # ---- record (before the tick, so row 0 is the initial state)
+            if 0 <= rec_row < n_rec:
+                REC[b, rec_row, 0] = QS[4, i]
+                REC[b, rec_row, 1] = AS[b, 0, S_COUNT_F]
+                REC[b, rec_row, 2] = AS[b, 1, S_COUNT_F]
+                REC[b, rec_row, 3] = AS[b, 0, S_IQ_MEAS]
+                REC[b, rec_row, 4] = AS[b, 1, S_IQ_MEAS]
+            rng = RNGL[i]
+            abort_now = False
+            abort_code = ABORT_NONE
+            # ---- the board's checks first (main.cpp:413-420): axis checks and the watchdog,
+            # in every state; a failed check disarms the motor
+            for a in range(2):
+                if C[b, a, C_WD_ENABLE] > 0.0:
+                    # axis.cpp:171-182: counts down while enabled, IDLE included; at 0 the
+                    # error is set (and stays set while the watchdog is not fed)
+                    if AS[b, a, S_WD_TIMER] > 0.0:
+                        AS[b, a, S_WD_TIMER] -= 1.0
+                    else:
+                        AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
+                if AI[b, a, I_AXIS_ERR] != 0:
+                    AI[b, a, I_MODE] = MODE_IDLE
+            ibus_sum = 0.0
+            for a in range(2):
+                j = j_of_a0 if a == 0 else 1 - j_of_a0
+                q = QS[2 * j, i]
+                if FR[b, F_BELT_K] > 0.0:       # compliant belt: the encoder is on the rotor
+                    q = X[b, X_PHI1 + 2 * j]
+                turns = dirn * (q - DRV[3 + j]) * turns_per_rad
+                rng, nz = _normal(rng)
+                raw = turns * cpr + enc_noise * nz
+                if FR[b, F_ENC_ON] > 0.0:       # the encoder's reading error (plant [encoder_error])
+                    raw += cpr * _encoder_error(FR, b, turns)
+                off = C[b, a, C_COUNT_OFFSET]
+                counts = (math.floor(raw + 0.5) if DRV[9] > 0.0 else raw) + off
+                AI[b, a, I_COUNTS] = np.int64(math.floor(raw + 0.5) + off)
+                AS[b, a, S_COUNT_F] = counts
+                # PLL estimator (firmware: kp = 2 bw, ki = kp^2 / 4)
+                kp = 2.0 * C[b, a, C_ENCODER_BW]
+                ki = 0.25 * kp * kp
+                pe = AS[b, a, S_POS_EST] + dt * AS[b, a, S_VEL_EST]
+                delta = counts * inv_cpr - pe
+                pe += dt * kp * delta
+                ve = AS[b, a, S_VEL_EST] + dt * ki * delta
+                if abs(ve) < 0.5 * dt * ki * inv_cpr:
+                    ve = 0.0
+                AS[b, a, S_POS_EST] = pe
+                AS[b, a, S_VEL_EST] = ve
+                mode = AI[b, a, I_MODE]
+                if mode == MODE_CALIB:
+                    # open-loop lock/scan at calibration_current (encoder.cpp:328-461): the
+                    # rotor follows the electrical angle through a torque ~ sin(pole_pairs * error)
+                    AS[b, a, S_CAL_POS] += C[b, a, C_CAL_VEL] * dt
+                    # the current ramps towards calibration_current at C_CAL_RAMP [A/s]
+                    i_tgt = C[b, a, C_CAL_CURRENT]
+                    step_i = C[b, a, C_CAL_RAMP] * dt
+                    i_now = AS[b, a, S_CAL_I]
+                    i_now = min(i_now + step_i, i_tgt) if i_now < i_tgt else max(i_now - step_i, i_tgt)
+                    AS[b, a, S_CAL_I] = i_now
+                    pp = DRV[10]
+                    iq = i_now * math.sin(two_pi * pp * (AS[b, a, S_CAL_POS] - turns))
+                    AS[b, a, S_IQ] = iq
+                    rng, nz = _normal(rng)
+                    AS[b, a, S_IQ_MEAS] = iq + cur_noise * nz
+                    AS[b, a, S_INTEGRATOR] = 0.0
+                    TAU[j, i] = dirn * N * DRV[8] * iq
+                    w = AS[b, a, S_VEL_EST] * two_pi
+                    ib = (1.5 * DRV[11] * i_now ** 2 + DRV[8] * iq * w) * INV_VBUS[i]
+                    AS[b, a, S_IBUS_MOTOR] = ib
+                    ibus_sum += ib
+                    continue
+                vel_limit = C[b, a, C_VEL_LIMIT]
+                if mode != MODE_IDLE and abs(ve) > vel_limit * C[b, a, C_VEL_TOL]:
+                    AI[b, a, I_CTRL_ERR] |= CONTROLLER_ERROR_OVERSPEED
+                    AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_CONTROLLER_FAILED
+                    mode = MODE_IDLE
+                if mode == MODE_IDLE:
+                    AI[b, a, I_MODE] = MODE_IDLE
+                    AS[b, a, S_IQ] = 0.0
+                    AS[b, a, S_INTEGRATOR] = 0.0
+                    AS[b, a, S_IQ_MEAS] = 0.0
+                    AS[b, a, S_IBUS_MOTOR] = 0.0
+                    TAU[j, i] = 0.0
+                    continue
+                # ---- input modes (controller.cpp:183-283): setpoints from the inputs
+                imode = int(C[b, a, C_INPUT_MODE])
+                if imode == INPUT_MODE_PASSTHROUGH:
+                    AS[b, a, S_POS_SP] = C[b, a, C_INPUT_POS]
+                    AS[b, a, S_VEL_SP] = C[b, a, C_INPUT_VEL]
+                    AS[b, a, S_TQ_SP] = C[b, a, C_INPUT_TORQUE]
+                elif imode == INPUT_MODE_POS_FILTER:
+                    fki = 2.0 * min(C[b, a, C_FILTER_BW], 0.25 / dt)
+                    fkp = 0.25 * fki * fki
+                    acc = fkp * (C[b, a, C_INPUT_POS] - AS[b, a, S_POS_SP]) + fki * (C[b, a, C_INPUT_VEL] - AS[b, a, S_VEL_SP])
+                    AS[b, a, S_TQ_SP] = 0.0  # acceleration times config.inertia (0 by default)
+                    AS[b, a, S_VEL_SP] += dt * acc
+                    AS[b, a, S_POS_SP] += dt * AS[b, a, S_VEL_SP]
+                elif imode == INPUT_MODE_TRAP_TRAJ:
+                    if AI[b, a, I_TRAJ_DONE] == 0:
+                        tt = AS[b, a, S_TT_T]
+                        ta, tv, td = C[b, a, C_TT_TA], C[b, a, C_TT_TV], C[b, a, C_TT_TD]
+                        if tt > ta + tv + td:
+                            AI[b, a, I_TRAJ_DONE] = 1
+                            AS[b, a, S_POS_SP] = C[b, a, C_TT_XF]
+                            AS[b, a, S_VEL_SP] = 0.0
+                            AS[b, a, S_TQ_SP] = 0.0
+                            if mode != MODE_POSITION:
+                                mode = MODE_POSITION
+                                AI[b, a, I_MODE] = MODE_POSITION
+                        else:
+                            if tt < 0.0:
+                                y, yd = C[b, a, C_TT_XI], C[b, a, C_TT_VI]
+                            elif tt < ta:
+                                y = C[b, a, C_TT_XI] + C[b, a, C_TT_VI] * tt + 0.5 * C[b, a, C_TT_AR] * tt * tt
+                                yd = C[b, a, C_TT_VI] + C[b, a, C_TT_AR] * tt
+                            elif tt < ta + tv:
+                                y = C[b, a, C_TT_YACC] + C[b, a, C_TT_VR] * (tt - ta)
+                                yd = C[b, a, C_TT_VR]
+                            else:
+                                tdd = tt - (ta + tv + td)
+                                y = C[b, a, C_TT_XF] + 0.5 * C[b, a, C_TT_DR] * tdd * tdd
+                                yd = C[b, a, C_TT_DR] * tdd
+                            AS[b, a, S_POS_SP] = y
+                            AS[b, a, S_VEL_SP] = yd
+                            AS[b, a, S_TQ_SP] = 0.0
+                            AS[b, a, S_TT_T] = tt + dt
+                # INPUT_MODE_INACTIVE: the setpoints stay as they are
+                kt = C[b, a, C_KT]
+                vel_gain = C[b, a, C_VEL_GAIN]
+                t_lim = C[b, a, C_CURRENT_LIM] * kt
+                verr = 0.0
+                if mode == MODE_POSITION and C[b, a, C_ABORT_ERROR] > 0.0:
+                    err = AS[b, a, S_POS_SP] - pe
+                    if abs(err) > C[b, a, C_ABORT_ERROR]:
+                        abort_now = True
+                        abort_code = ABORT_POSITION_ERROR
+                    elif _oscillation_update_at(AS, b, a, err, 0.025 * C[b, a, C_ABORT_ERROR]):
+                        abort_now = True
+                        abort_code = ABORT_OSCILLATION
+                if mode == MODE_TORQUE:
+                    if n_tab > 0:
+                        row = min(k // tt_period, n_tab - 1)
+                        torque = TT[b, row, a]
+                    else:
+                        torque = AS[b, a, S_TQ_SP]
+                    # firmware's enable_torque_mode_vel_limit
+                    t_max = (vel_limit - ve) * vel_gain
+                    t_min = (-vel_limit - ve) * vel_gain
+                    torque = min(max(torque, t_min), t_max)
                 else:
-                    AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
-            if AI[b, a, I_AXIS_ERR] != 0:
-                AI[b, a, I_MODE] = MODE_IDLE
-        ibus_sum = 0.0
-        for a in range(2):
-            j = j_of_a0 if a == 0 else 1 - j_of_a0
-            q = X[b, 2 * j]
-            if FR[b, F_BELT_K] > 0.0:       # compliant belt: the encoder is on the rotor
-                q = X[b, X_PHI1 + 2 * j]
-            turns = dirn * (q - DRV[3 + j]) * turns_per_rad
-            rng, nz = _normal(rng)
-            raw = turns * cpr + enc_noise * nz
-            if FR[b, F_ENC_ON] > 0.0:       # the encoder's reading error (plant [encoder_error])
-                raw += cpr * _encoder_error(FR, b, turns)
-            off = C[b, a, C_COUNT_OFFSET]
-            counts = (math.floor(raw + 0.5) if DRV[9] > 0.0 else raw) + off
-            AI[b, a, I_COUNTS] = np.int64(math.floor(raw + 0.5) + off)
-            AS[b, a, S_COUNT_F] = counts
-            # PLL estimator (firmware: kp = 2 bw, ki = kp^2 / 4)
-            kp = 2.0 * C[b, a, C_ENCODER_BW]
-            ki = 0.25 * kp * kp
-            pe = AS[b, a, S_POS_EST] + dt * AS[b, a, S_VEL_EST]
-            delta = counts * inv_cpr - pe
-            pe += dt * kp * delta
-            ve = AS[b, a, S_VEL_EST] + dt * ki * delta
-            if abs(ve) < 0.5 * dt * ki * inv_cpr:
-                ve = 0.0
-            AS[b, a, S_POS_EST] = pe
-            AS[b, a, S_VEL_EST] = ve
-            mode = AI[b, a, I_MODE]
-            if mode == MODE_CALIB:
-                # open-loop lock/scan at calibration_current (encoder.cpp:328-461): the
-                # rotor follows the electrical angle through a torque ~ sin(pole_pairs * error)
-                AS[b, a, S_CAL_POS] += C[b, a, C_CAL_VEL] * dt
-                # the current ramps towards calibration_current at C_CAL_RAMP [A/s]
-                i_tgt = C[b, a, C_CAL_CURRENT]
-                step_i = C[b, a, C_CAL_RAMP] * dt
-                i_now = AS[b, a, S_CAL_I]
-                i_now = min(i_now + step_i, i_tgt) if i_now < i_tgt else max(i_now - step_i, i_tgt)
-                AS[b, a, S_CAL_I] = i_now
-                pp = DRV[10]
-                iq = i_now * math.sin(two_pi * pp * (AS[b, a, S_CAL_POS] - turns))
+                    vel_sp = min(max(AS[b, a, S_VEL_SP], -vel_limit), vel_limit)
+                    if mode == MODE_POSITION:
+                        vel_des = C[b, a, C_POS_GAIN] * (AS[b, a, S_POS_SP] - pe) + vel_sp
+                    else:
+                        vel_des = vel_sp
+                    vel_des = min(max(vel_des, -vel_limit), vel_limit)
+                    verr = vel_des - ve
+                    torque = vel_gain * verr + AS[b, a, S_INTEGRATOR] + AS[b, a, S_TQ_SP]
+                limited = False
+                if torque > t_lim:
+                    torque = t_lim
+                    limited = True
+                elif torque < -t_lim:
+                    torque = -t_lim
+                    limited = True
+                # controller.cpp:408-420: the integrator is reset in torque control (where the
+                # firmware version does so), decays while limited, and is clamped
+                if mode == MODE_TORQUE:
+                    if C[b, a, C_INT_RESET_TORQUE] > 0.0:
+                        AS[b, a, S_INTEGRATOR] = 0.0
+                else:
+                    if limited:
+                        AS[b, a, S_INTEGRATOR] *= 0.99
+                    else:
+                        AS[b, a, S_INTEGRATOR] += C[b, a, C_VEL_INT_GAIN] * dt * verr
+                    lim = C[b, a, C_VEL_INT_LIMIT]
+                    AS[b, a, S_INTEGRATOR] = min(max(AS[b, a, S_INTEGRATOR], -lim), lim)
+                alpha = ALPHA[i, a]
+                iq = AS[b, a, S_IQ] + alpha * (torque * INV_KT[i, a] - AS[b, a, S_IQ])
                 AS[b, a, S_IQ] = iq
                 rng, nz = _normal(rng)
-                AS[b, a, S_IQ_MEAS] = iq + cur_noise * nz
-                AS[b, a, S_INTEGRATOR] = 0.0
-                tau[j] = dirn * N * DRV[8] * iq
-                w = AS[b, a, S_VEL_EST] * two_pi
-                ib = (1.5 * DRV[11] * i_now ** 2 + DRV[8] * iq * w) * inv_vbus
+                iq_meas = iq + cur_noise * nz
+                AS[b, a, S_IQ_MEAS] = iq_meas
+                if abs(iq_meas) > C[b, a, C_CURRENT_LIM] + CURRENT_LIM_MARGIN:
+                    AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_CURRENT_LIMIT_VIOLATION
+                    AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
+                    AI[b, a, I_MODE] = MODE_IDLE
+                    AS[b, a, S_IQ] = 0.0
+                    iq = 0.0
+                # the motor's own torque constant makes the torque; the configured one only
+                # converts the torque command to a current
+                TAU[j, i] = dirn * N * DRV[8] * iq
+                # this motor's bus current: copper loss plus mechanical power over vbus
+                w = ve * two_pi
+                ib = (1.5 * DRV[11] * iq * iq + DRV[8] * iq * w) * INV_VBUS[i]
                 AS[b, a, S_IBUS_MOTOR] = ib
                 ibus_sum += ib
-                continue
-            vel_limit = C[b, a, C_VEL_LIMIT]
-            if mode != MODE_IDLE and abs(ve) > vel_limit * C[b, a, C_VEL_TOL]:
-                AI[b, a, I_CTRL_ERR] |= CONTROLLER_ERROR_OVERSPEED
-                AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_CONTROLLER_FAILED
-                mode = MODE_IDLE
-            if mode == MODE_IDLE:
-                AI[b, a, I_MODE] = MODE_IDLE
-                AS[b, a, S_IQ] = 0.0
-                AS[b, a, S_INTEGRATOR] = 0.0
-                AS[b, a, S_IQ_MEAS] = 0.0
-                AS[b, a, S_IBUS_MOTOR] = 0.0
-                tau[j] = 0.0
-                continue
-            # ---- input modes (controller.cpp:183-283): setpoints from the inputs
-            imode = int(C[b, a, C_INPUT_MODE])
-            if imode == INPUT_MODE_PASSTHROUGH:
-                AS[b, a, S_POS_SP] = C[b, a, C_INPUT_POS]
-                AS[b, a, S_VEL_SP] = C[b, a, C_INPUT_VEL]
-                AS[b, a, S_TQ_SP] = C[b, a, C_INPUT_TORQUE]
-            elif imode == INPUT_MODE_POS_FILTER:
-                fki = 2.0 * min(C[b, a, C_FILTER_BW], 0.25 / dt)
-                fkp = 0.25 * fki * fki
-                acc = fkp * (C[b, a, C_INPUT_POS] - AS[b, a, S_POS_SP]) + fki * (C[b, a, C_INPUT_VEL] - AS[b, a, S_VEL_SP])
-                AS[b, a, S_TQ_SP] = 0.0  # acceleration times config.inertia (0 by default)
-                AS[b, a, S_VEL_SP] += dt * acc
-                AS[b, a, S_POS_SP] += dt * AS[b, a, S_VEL_SP]
-            elif imode == INPUT_MODE_TRAP_TRAJ:
-                if AI[b, a, I_TRAJ_DONE] == 0:
-                    tt = AS[b, a, S_TT_T]
-                    ta, tv, td = C[b, a, C_TT_TA], C[b, a, C_TT_TV], C[b, a, C_TT_TD]
-                    if tt > ta + tv + td:
-                        AI[b, a, I_TRAJ_DONE] = 1
-                        AS[b, a, S_POS_SP] = C[b, a, C_TT_XF]
-                        AS[b, a, S_VEL_SP] = 0.0
-                        AS[b, a, S_TQ_SP] = 0.0
-                        if mode != MODE_POSITION:
-                            mode = MODE_POSITION
-                            AI[b, a, I_MODE] = MODE_POSITION
-                    else:
-                        if tt < 0.0:
-                            y, yd = C[b, a, C_TT_XI], C[b, a, C_TT_VI]
-                        elif tt < ta:
-                            y = C[b, a, C_TT_XI] + C[b, a, C_TT_VI] * tt + 0.5 * C[b, a, C_TT_AR] * tt * tt
-                            yd = C[b, a, C_TT_VI] + C[b, a, C_TT_AR] * tt
-                        elif tt < ta + tv:
-                            y = C[b, a, C_TT_YACC] + C[b, a, C_TT_VR] * (tt - ta)
-                            yd = C[b, a, C_TT_VR]
-                        else:
-                            tdd = tt - (ta + tv + td)
-                            y = C[b, a, C_TT_XF] + 0.5 * C[b, a, C_TT_DR] * tdd * tdd
-                            yd = C[b, a, C_TT_DR] * tdd
-                        AS[b, a, S_POS_SP] = y
-                        AS[b, a, S_VEL_SP] = yd
-                        AS[b, a, S_TQ_SP] = 0.0
-                        AS[b, a, S_TT_T] = tt + dt
-            # INPUT_MODE_INACTIVE: the setpoints stay as they are
-            kt = C[b, a, C_KT]
-            vel_gain = C[b, a, C_VEL_GAIN]
-            t_lim = C[b, a, C_CURRENT_LIM] * kt
-            verr = 0.0
-            if mode == MODE_POSITION and C[b, a, C_ABORT_ERROR] > 0.0:
-                err = AS[b, a, S_POS_SP] - pe
-                if abs(err) > C[b, a, C_ABORT_ERROR]:
-                    abort_now = True
-                    abort_code = ABORT_POSITION_ERROR
-                elif _oscillation_update_at(AS, b, a, err, 0.025 * C[b, a, C_ABORT_ERROR]):
-                    abort_now = True
-                    abort_code = ABORT_OSCILLATION
-            if mode == MODE_TORQUE:
-                if n_tab > 0:
-                    row = min(k // tt_period, n_tab - 1)
-                    torque = TT[b, row, a]
-                else:
-                    torque = AS[b, a, S_TQ_SP]
-                # firmware's enable_torque_mode_vel_limit
-                t_max = (vel_limit - ve) * vel_gain
-                t_min = (-vel_limit - ve) * vel_gain
-                torque = min(max(torque, t_min), t_max)
-            else:
-                vel_sp = min(max(AS[b, a, S_VEL_SP], -vel_limit), vel_limit)
-                if mode == MODE_POSITION:
-                    vel_des = C[b, a, C_POS_GAIN] * (AS[b, a, S_POS_SP] - pe) + vel_sp
-                else:
-                    vel_des = vel_sp
-                vel_des = min(max(vel_des, -vel_limit), vel_limit)
-                verr = vel_des - ve
-                torque = vel_gain * verr + AS[b, a, S_INTEGRATOR] + AS[b, a, S_TQ_SP]
-            limited = False
-            if torque > t_lim:
-                torque = t_lim
-                limited = True
-            elif torque < -t_lim:
-                torque = -t_lim
-                limited = True
-            # controller.cpp:408-420: the integrator is reset in torque control (where the
-            # firmware version does so), decays while limited, and is clamped
-            if mode == MODE_TORQUE:
-                if C[b, a, C_INT_RESET_TORQUE] > 0.0:
+            # ---- the DC bus (low_level.cpp:320-376): brake resistor, then the bus limits
+            brake_i = 0.0
+            if C[b, 0, C_BRAKE_ON] > 0.0:
+                brake_i = -ibus_sum - C[b, 0, C_MAX_REGEN]
+                duty = brake_i * C[b, 0, C_BRAKE_R] * INV_VBUS[i]
+                duty = min(max(duty, 0.0), 0.95)
+                brake_i = duty * C[b, 0, C_VBUS] * INV_BRAKE_R[i]
+                ibus_sum += brake_i
+            AS[b, 0, S_BRAKE_I] = brake_i
+            AS[b, 0, S_IBUS] = ibus_sum
+            bus_fault = 0
+            if ibus_sum > C[b, 0, C_DC_MAX_POS]:
+                bus_fault = 1
+            elif ibus_sum < C[b, 0, C_DC_MAX_NEG]:
+                bus_fault = 2
+            if bus_fault:
+                for a in range(2):
+                    if C[b, 0, C_REGEN_ERR_STYLE] > 0.0:   # 0.5.1: low_level_fault on the motors
+                        AI[b, a, I_MOTOR_ERR] |= (MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT if bus_fault == 2
+                                                   else MOTOR_ERROR_DC_BUS_OVER_CURRENT)
+                    else:                                  # 0.5.2+: odrv.disarm_with_error
+                        AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_SYSTEM_LEVEL
+                    AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
+                    AI[b, a, I_MODE] = MODE_IDLE
+                    AS[b, a, S_IQ] = 0.0
                     AS[b, a, S_INTEGRATOR] = 0.0
-            else:
-                if limited:
-                    AS[b, a, S_INTEGRATOR] *= 0.99
-                else:
-                    AS[b, a, S_INTEGRATOR] += C[b, a, C_VEL_INT_GAIN] * dt * verr
-                lim = C[b, a, C_VEL_INT_LIMIT]
-                AS[b, a, S_INTEGRATOR] = min(max(AS[b, a, S_INTEGRATOR], -lim), lim)
-            alpha = alpha_ax[a]
-            iq = AS[b, a, S_IQ] + alpha * (torque * inv_kt_ax[a] - AS[b, a, S_IQ])
-            AS[b, a, S_IQ] = iq
-            rng, nz = _normal(rng)
-            iq_meas = iq + cur_noise * nz
-            AS[b, a, S_IQ_MEAS] = iq_meas
-            if abs(iq_meas) > C[b, a, C_CURRENT_LIM] + CURRENT_LIM_MARGIN:
-                AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_CURRENT_LIMIT_VIOLATION
-                AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
-                AI[b, a, I_MODE] = MODE_IDLE
-                AS[b, a, S_IQ] = 0.0
-                iq = 0.0
-            # the motor's own torque constant makes the torque; the configured one only
-            # converts the torque command to a current
-            tau[j] = dirn * N * DRV[8] * iq
-            # this motor's bus current: copper loss plus mechanical power over vbus
-            w = ve * two_pi
-            ib = (1.5 * DRV[11] * iq * iq + DRV[8] * iq * w) * inv_vbus
-            AS[b, a, S_IBUS_MOTOR] = ib
-            ibus_sum += ib
-        # ---- the DC bus (low_level.cpp:320-376): brake resistor, then the bus limits
-        brake_i = 0.0
-        if C[b, 0, C_BRAKE_ON] > 0.0:
-            brake_i = -ibus_sum - C[b, 0, C_MAX_REGEN]
-            duty = brake_i * C[b, 0, C_BRAKE_R] * inv_vbus
-            duty = min(max(duty, 0.0), 0.95)
-            brake_i = duty * C[b, 0, C_VBUS] * inv_brake_r
-            ibus_sum += brake_i
-        AS[b, 0, S_BRAKE_I] = brake_i
-        AS[b, 0, S_IBUS] = ibus_sum
-        bus_fault = 0
-        if ibus_sum > C[b, 0, C_DC_MAX_POS]:
-            bus_fault = 1
-        elif ibus_sum < C[b, 0, C_DC_MAX_NEG]:
-            bus_fault = 2
-        if bus_fault:
-            for a in range(2):
-                if C[b, 0, C_REGEN_ERR_STYLE] > 0.0:   # 0.5.1: low_level_fault on the motors
-                    AI[b, a, I_MOTOR_ERR] |= (MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT if bus_fault == 2
-                                               else MOTOR_ERROR_DC_BUS_OVER_CURRENT)
-                else:                                  # 0.5.2+: odrv.disarm_with_error
-                    AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_SYSTEM_LEVEL
-                AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
-                AI[b, a, I_MODE] = MODE_IDLE
-                AS[b, a, S_IQ] = 0.0
-                AS[b, a, S_INTEGRATOR] = 0.0
-            if C[b, 0, C_REGEN_ERR_STYLE] <= 0.0:
-                AI[b, 0, I_SYS_ERR] |= (ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT if bus_fault == 2
-                                        else ODRIVE_ERROR_DC_BUS_OVER_CURRENT)
-            tau[0] = 0.0
-            tau[1] = 0.0
-        if abort_now:
-            for a in range(2):
-                AI[b, a, I_MODE] = MODE_IDLE
-                AS[b, a, S_IQ] = 0.0
-                AS[b, a, S_INTEGRATOR] = 0.0
-            tau[0] = 0.0
-            tau[1] = 0.0
-            if ABORT[b, 1] == ABORT_NONE:
-                ABORT[b, 0] = k
-                ABORT[b, 1] = abort_code
+                if C[b, 0, C_REGEN_ERR_STYLE] <= 0.0:
+                    AI[b, 0, I_SYS_ERR] |= (ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT if bus_fault == 2
+                                            else ODRIVE_ERROR_DC_BUS_OVER_CURRENT)
+                TAU[0, i] = 0.0
+                TAU[1, i] = 0.0
+            if abort_now:
+                for a in range(2):
+                    AI[b, a, I_MODE] = MODE_IDLE
+                    AS[b, a, S_IQ] = 0.0
+                    AS[b, a, S_INTEGRATOR] = 0.0
+                TAU[0, i] = 0.0
+                TAU[1, i] = 0.0
+                if ABORT[b, 1] == ABORT_NONE:
+                    ABORT[b, 0] = k
+                    ABORT[b, 1] = abort_code
+            RNGL[i] = rng
         # ---- mechanics
-        if FR[b, F_COG_ON] > 0.0:           # cogging on the rotors (plant [cogging])
-            _add_cogging(b, X, FR, DRV, tau)
-        if FR[b, F_BELT_K] > 0.0:           # compliant belt: the joints get the belt's torques
-            _belt_split(b, X, FR, tau, tm)
-        q1, dq1, q2, dq2 = X[b, 0], X[b, 1], X[b, 2], X[b, 3]
-        if MECH[b] == 0:
-            s_q1, c_q1 = _sincos(q1)
-            s_q2, c_q2 = _sincos(q2)
-            r5 = _fivebar_reduced(c_q1, s_q1, c_q2, s_q2, dq1, dq2, Pb)
-            d11, d12, d22, b1, b2 = r5[0], r5[1], r5[2], r5[3], r5[4]
+        if plain:
+            _mechanics_plain(dt, QS, TAU, DEAD, NF, P_plain, FR_plain)
+            for i in range(nb):
+                if NF[i] != 0:
+                    b = b0 + i
+                    ABORT[b, 0] = k
+                    ABORT[b, 1] = ABORT_NONFINITE
+                    for a in range(2):
+                        AI[b, a, I_MODE] = MODE_IDLE
+                    DEAD[i] = 1
         else:
-            d11, d12, d22, b1, b2 = FR[b, 11], 0.0, FR[b, 12], 0.0, 0.0
-        f1 = FR[b, 0] * dq1 + (FR[b, 2] + _stribeck(FR[b, 4], dq1 * inv_v_stribeck)) * _tanh(dq1 * inv_v_smooth)
-        f2 = FR[b, 1] * dq2 + (FR[b, 3] + _stribeck(FR[b, 5], dq2 * inv_v_stribeck)) * _tanh(dq2 * inv_v_smooth)
-        if FR[b, F_FRIC_EXT] > 0.0:         # asymmetric, LuGre, drifting friction (plant [friction])
-            f1 = _joint_friction(b, dt, X, FR, 0, dq1)
-            f2 = _joint_friction(b, dt, X, FR, 1, dq2)
-        t1 = tau[0] - b1 - f1
-        t2 = tau[1] - b2 - f2
-        if MECH[b] == 0:
-            gap = q2 - q1
-            if gap < FR[b, 8]:
-                push = FR[b, 9] * (FR[b, 8] - gap) - FR[b, 10] * (dq2 - dq1)
-                if push > 0.0:
-                    t1 -= push
-                    t2 += push
-            elif gap > FR[b, 13]:
-                pull = FR[b, 9] * (gap - FR[b, 13]) + FR[b, 10] * (dq2 - dq1)
-                if pull > 0.0:
-                    t1 += pull
-                    t2 -= pull
-        det = d11 * d22 - d12 * d12
-        inv_det = 1.0 / det
-        a1 = (d22 * t1 - d12 * t2) * inv_det
-        a2 = (-d12 * t1 + d11 * t2) * inv_det
-        if not (math.isfinite(a1) and math.isfinite(a2)):
-            ABORT[b, 0] = k
-            ABORT[b, 1] = ABORT_NONFINITE
-            for a in range(2):
-                AI[b, a, I_MODE] = MODE_IDLE
-            break
-        if FR[b, F_BELT_K] > 0.0:           # compliant belt: joints and rotors advance together
-            _belt_advance(b, dt, X, FR, tm, tau, a1, a2, d11, d12, d22)
-            continue
-        dq1 += a1 * dt
-        dq2 += a2 * dt
-        X[b, 0] = q1 + dq1 * dt
-        X[b, 1] = dq1
-        X[b, 2] = q2 + dq2 * dt
-        X[b, 3] = dq2
-        X[b, 4] += dt
-    RNG[b] = rng
+            for i in range(nb):
+                if DEAD[i] != 0:
+                    continue
+                b = b0 + i
+                for n in range(5):
+                    X[b, n] = QS[n, i]
+                if _mechanics_leg(b, k, dt, X, AI, FR, MECH, DRV, ABORT, P, TAU[:, i], TM[i], INV_VS[i],
+                                  INV_VSM[i]):
+                    DEAD[i] = 1
+                for n in range(5):
+                    QS[n, i] = X[b, n]
+    for i in range(nb):
+        b = b0 + i
+        for n in range(5):
+            X[b, n] = QS[n, i]
+        RNG[b] = RNGL[i]
 
 
 # ---------------------------------------------------------------------------------------
@@ -923,14 +1050,18 @@ class Twin:
         rec = no_rec if record is None else record
         if B == 1:
             _run_serial(n, self.dt, st.X, st.AS, st.AI, st.C, P, FR, MECH, self.DRV, st.RNG, st.ABORT, tt,
-                        tt_period, rec, int(record_every), int(record_offset))
+                        tt_period, rec, int(record_every), int(record_offset), 1)
             return
-        # legs handed out one at a time (a dynamic schedule: legs that abort early finish
-        # early, and a core busy with something else takes fewer)
+        # blocks of legs handed out one at a time (a dynamic schedule: a core busy with
+        # something else takes fewer), at least two per thread and at most MAX_BLOCK legs
+        threads = get_num_threads()
+        per = max(2 * threads, -(-B // MAX_BLOCK))
+        per = -(-per // threads) * threads
+        block = -(-B // per)
         chunk = set_parallel_chunksize(1)
         try:
             _run(n, self.dt, st.X, st.AS, st.AI, st.C, P, FR, MECH, self.DRV, st.RNG, st.ABORT, tt, tt_period,
-                 rec, int(record_every), int(record_offset))
+                 rec, int(record_every), int(record_offset), block)
         finally:
             set_parallel_chunksize(chunk)
 

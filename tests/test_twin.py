@@ -268,3 +268,34 @@ def test_usb_polling_path_on_the_twin_agrees_with_the_kernel_path():
     unstable = io._step_usb(dev, (50.0, 0.002, 0.08), 0.4, 1.5, 0.002, 12.0, 0.8)
     assert not unstable.completed and "oscillation" in unstable.abort_reason
     assert all(int(dev.get(a, "current_state")) == 1 for a in (0, 1))
+
+
+def test_the_vectorized_mechanics_give_the_leg_by_leg_numbers():
+    """A block of legs that share a plain plant advances its mechanics in one loop over the
+    legs (_mechanics_plain, which vectorizes); a block holding a leg of another plant goes
+    leg by leg (_mechanics_leg). For the same legs both give the same numbers, bit for bit:
+    noisy steps, an unstable point that the safety abort stops included."""
+    tw = T.Twin(seed=4)
+    gains = np.array([[20, 0.02, 0.01], [50, 0.046, 0.001], [35, 0.1, 0.05], [200, 0.5, 5.0],
+                      [5, 0.001, 0.0], [80, 0.03, 0.2], [12, 0.2, 0.0], [60, 0.06, 0.02], [40, 0.01, 0.3]])
+    B = len(gains)
+    start = tw.step_batch(gains, duration=0.0)["final"]   # prepared for the step, not yet run
+
+    def run(st, P, FR, block):
+        rec = np.zeros((st.batch, 400, 5))
+        T._run_serial(4000, tw.dt, st.X, st.AS, st.AI, st.C, P, FR, np.zeros(st.batch, np.int64), tw.DRV,
+                      st.RNG, st.ABORT, np.zeros((st.batch, 0, 2)), 1, rec, 10, 0, block)
+        return st, rec
+
+    P = np.ascontiguousarray(np.broadcast_to(tw.P, (B + 1, tw.P.size)))
+    FR = np.ascontiguousarray(np.broadcast_to(tw.FR, (B + 1, tw.FR.size)))
+    FR[B, 0] *= 1.5   # one more leg, of another plant: its block is not plain
+    assert T._plain_block(0, B, P, FR, np.zeros(B + 1, np.int64))
+    assert not T._plain_block(0, B + 1, P, FR, np.zeros(B + 1, np.int64))
+    vec, rec_vec = run(start.copy(), P[:B], FR[:B], B)
+    leg, rec_leg = run(start.take(list(range(B)) + [0]), P, FR, B + 1)
+    assert (vec.ABORT[:, 1] != T.ABORT_NONE).sum() >= 1   # an unstable point was stopped
+    np.testing.assert_array_equal(rec_vec, rec_leg[:B])
+    np.testing.assert_array_equal(vec.X, leg.X[:B])
+    np.testing.assert_array_equal(vec.AS, leg.AS[:B])
+    np.testing.assert_array_equal(vec.ABORT, leg.ABORT[:B])
