@@ -72,6 +72,7 @@ import re
 import secrets
 import stat
 import subprocess
+import sys
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -779,8 +780,8 @@ def set_aside(path: Path, directory: Path | None = None) -> Path:
 # -- claims: one writer per point --------------------------------------------------------
 
 class Claim:
-    """An exclusive claim on one grid point of a directory (an flock on a lock file):
-    held while the point is measured and written, released when the process ends, so a
+    """An exclusive claim on one grid point of a directory: held while the point is
+    measured and written, released when the process ends (the kernel drops the lock), so a
     crashed writer never blocks the point."""
 
     def __init__(self, fd: int):
@@ -792,11 +793,41 @@ class Claim:
             self._fd = None
 
 
+CLAIMS_FILE = ".claims.lock"
+# Linux: one byte of one lock file per point, locked with an open-file-description lock
+# (F_OFD_SETLK: owned by the open file, as flock, so two claims of one process exclude each
+# other too). A sweep then creates one file for its claims, not one per point (creating a
+# file is the costly part of a claim). Elsewhere: one lock file per point, with flock.
+_OFD = (getattr(fcntl, "F_OFD_SETLK", None), getattr(fcntl, "F_OFD_SETLKW", None))
+_FLOCK_STRUCT = "hhqqi4x"   # struct flock on 64-bit Linux: type, whence, start, len, pid
+
+
+def _claim_ofd(directory: str | Path, digest: bytes, wait: bool) -> Claim | None:
+    import struct
+    fd = os.open(os.path.join(directory, CLAIMS_FILE), os.O_RDWR | os.O_CREAT, 0o666)
+    offset = int.from_bytes(digest[:7], "big")   # a byte of a sparse range below 2^56
+    lock = struct.pack(_FLOCK_STRUCT, fcntl.F_WRLCK, os.SEEK_SET, offset, 1, 0)
+    try:
+        fcntl.fcntl(fd, _OFD[1] if wait else _OFD[0], lock)
+    except OSError as exc:
+        os.close(fd)
+        if exc.errno in (errno.EAGAIN, errno.EACCES):
+            return None
+        raise
+    except BaseException:
+        os.close(fd)
+        raise
+    return Claim(fd)
+
+
 def claim(directory: str | Path, gains, wait: bool = False) -> Claim | None:
     """Claim the point ``gains`` in ``directory``; None if another process holds it
     (``wait=True`` blocks until it is released)."""
+    digest = hashlib.sha1(exact_gains_key(gains).encode()).digest()
+    if _OFD[0] is not None and sys.platform == "linux":
+        return _claim_ofd(directory, digest, wait)
     locks = os.path.join(directory, ".claims")
-    lock = os.path.join(locks, hashlib.sha1(exact_gains_key(gains).encode()).hexdigest()[:20] + ".lock")
+    lock = os.path.join(locks, digest.hex()[:20] + ".lock")
     try:
         fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
     except FileNotFoundError:  # the first claim in this directory

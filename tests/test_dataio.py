@@ -4,6 +4,7 @@ file:line errors; thesis files still load."""
 import datetime as dt
 import json
 import os
+import sys
 
 import numpy as np
 import pytest
@@ -258,6 +259,29 @@ def test_claims_are_exclusive_and_released(tmp_path):
     assert dataio.claim(tmp_path, (1.0, 2.0, 3.0000001)) is not None
     c.release()
     assert dataio.claim(tmp_path, (1.0, 2.0, 3.0)) is not None
+
+
+def test_a_claim_held_by_another_process_is_refused_until_it_ends(tmp_path):
+    import subprocess
+    import sys
+    code = ("import sys, time; from leglib import dataio; c = dataio.claim(sys.argv[1], (4.0, 5.0, 6.0)); "
+            "print('held' if c else 'refused', flush=True); time.sleep(60)")
+    proc = subprocess.Popen([sys.executable, "-c", code, str(tmp_path)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "held"
+        assert dataio.claim(tmp_path, (4.0, 5.0, 6.0)) is None
+        assert dataio.claim(tmp_path, (4.0, 5.0, 6.5)) is not None
+    finally:
+        proc.kill()
+        proc.wait()
+    assert dataio.claim(tmp_path, (4.0, 5.0, 6.0)) is not None   # its process gone: released
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="open-file-description locks are Linux's")
+def test_claims_of_a_sweep_share_one_lock_file(tmp_path):
+    held = [dataio.claim(tmp_path, (float(i), 0.05, 0.01)) for i in range(50)]
+    assert all(c is not None for c in held)
+    assert [p.name for p in tmp_path.rglob("*")] == [dataio.CLAIMS_FILE]
 
 
 def test_cached_result_from_another_leg_is_refused(tmp_path):
