@@ -1042,7 +1042,7 @@ def thesis_grid() -> np.ndarray:
 
 def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool = True,
           step: float = 0.4, duration: float = 1.5, sample_period: float = 0.002,
-          chunk: int = 100) -> SweepResult:
+          chunk: int = 400) -> SweepResult:
     """Measure a step response for every (pos_gain, vel_gain, vel_integrator_gain) in
     ``grid`` and write each as a measurement file in ``out_dir``.
 
@@ -1059,8 +1059,9 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
     so two sweeps into one directory share the grid: neither loses nor duplicates a point.
     Each file is committed when its point is done, so an interruption (exception, lost
     device, KeyboardInterrupt) loses no finished point; the axes go IDLE whatever happens.
-    On the twin, pending points run in batches of ``chunk`` through the compiled kernel,
-    and each batch's files are flushed to disk together at its end
+    On the twin, pending points run in batches of ``chunk`` through the compiled kernel
+    (the thesis grid in one: a batch costs a fixed setup, and the kernel shares a batch
+    out best when it is large), and each batch's files are flushed to disk together at its end
     (:func:`leglib.dataio.deferred_sync`); on USB one after the other, each file flushed
     as it is written.
     """

@@ -90,8 +90,11 @@ N_X = 13
  F_COG_A3, F_COG_P1, F_COG_P2, F_COG_P3, F_ENC_ON, F_ENC_A1, F_ENC_P1, F_ENC_A2, F_ENC_P2, F_FRIC_EXT,
  F_LUGRE_S0, F_LUGRE_S1, F_ASYM, F_DRIFT, F_DRIFT_TRAVEL) = range(14, 38)
 N_FR = 38
-# the most legs a thread advances together (see _run_block): their state stays in the L1 cache
-MAX_BLOCK = 16
+# legs per vector of the plain mechanics (see _run_block): 8 doubles fill an AVX-512
+# register, two AVX2 ones; a block of legs is one or two of these (a block that is not a
+# multiple leaves legs to the slower scalar remainder of the loop; more legs than 16 leave
+# the L1 cache)
+VECTOR_LEGS = 8
 # a compliant belt is sub-stepped so that its mode advances at most this many radians a step
 BELT_PHASE_PER_STEP = 0.3
 # leglib's own abort codes (ABORT[b, 1])
@@ -1053,11 +1056,10 @@ class Twin:
                         tt_period, rec, int(record_every), int(record_offset), 1)
             return
         # blocks of legs handed out one at a time (a dynamic schedule: a core busy with
-        # something else takes fewer), at least two per thread and at most MAX_BLOCK legs
-        threads = get_num_threads()
-        per = max(2 * threads, -(-B // MAX_BLOCK))
-        per = -(-per // threads) * threads
-        block = -(-B // per)
+        # something else takes fewer); whole vectors of legs, two when there are blocks
+        # enough to share out evenly
+        big = B >= 16 * VECTOR_LEGS * get_num_threads()
+        block = 2 * VECTOR_LEGS if big else VECTOR_LEGS
         chunk = set_parallel_chunksize(1)
         try:
             _run(n, self.dt, st.X, st.AS, st.AI, st.C, P, FR, MECH, self.DRV, st.RNG, st.ABORT, tt, tt_period,
