@@ -31,6 +31,37 @@ def fma(typingctx, a, b, c):
 
 
 @intrinsic
+def select(typingctx, cond, a, b):
+    """``a if cond else b`` as one select instruction, both operands already evaluated: no
+    branch for the compiler to keep (a conditional expression becomes control flow, and
+    several of them on one condition are merged into regions a vectorizer cannot use)."""
+    ty = types.unliteral(typingctx.unify_types(types.unliteral(a), types.unliteral(b)))
+    if ty is None:
+        return None
+    sig = ty(types.boolean, a, b)
+
+    def codegen(context, builder, signature, args):
+        c = context.cast(builder, args[0], signature.args[0], types.boolean)
+        x = context.cast(builder, args[1], signature.args[1], ty)
+        y = context.cast(builder, args[2], signature.args[2], ty)
+        return builder.select(c, x, y)
+    return sig, codegen
+
+
+@njit(cache=True, inline="always")
+def py_max(a, b):
+    """max(a, b) as Python and numba define it (``b`` when ``b > a``, else ``a``: NaN and
+    signed zeros alike), as one select (numba's own max keeps some loops from vectorizing)."""
+    return select(b > a, b, a)
+
+
+@njit(cache=True, inline="always")
+def py_min(a, b):
+    """min(a, b) as Python and numba define it (``b`` when ``b < a``, else ``a``)."""
+    return select(b < a, b, a)
+
+
+@intrinsic
 def pow2(typingctx, n):
     """2.0 ** n for an integral float ``n`` in [-1022, 1023], its exponent bits set directly
     (no table: a table lookup keeps a loop over legs from vectorizing)."""

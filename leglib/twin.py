@@ -13,12 +13,17 @@ their own inertias, sub-stepped when stiff, the encoders on the rotors), cogging
 encoder reading error, and LuGre, direction-dependent and drifting friction.
 
 A single experiment is a batch of one and a sweep a batch of many; both go through the same
-kernel, so they give identical numbers. Each thread advances a block of legs tick by tick:
-the controllers leg by leg, then the block's mechanics in one loop over its legs, which the
-compiler vectorizes when the legs share a plant without the unmodeled effects (the same
-operations in the same order: the numbers do not depend on the block). :class:`Twin` holds the batch state and exposes
-``advance`` and the whole-experiment runners; :mod:`leglib.virtual_odrive` puts the ODrive
-object tree on top of a batch of one.
+kernel, so they give identical numbers. Each thread advances a block of up to 16 legs tick
+by tick. The common case of a sweep -- a plant without the unmodeled effects, every axis in
+position control or IDLE with its inputs passed through, no watchdog -- runs vectorized
+(:func:`_run_block_vector`): the block's state copied into rows by leg, then per tick one
+loop over the legs for the controllers and one for the mechanics, branch-free, which the
+compiler turns into SIMD code over 8 legs at a time. Every other block runs leg by leg
+(:func:`_run_block`, the reference: calibration, torque and filtered modes, trajectories,
+the watchdog, the unmodeled effects). Both paths do the same operations in the same order,
+so a leg's numbers do not depend on its block or path (tests/test_twin.py checks it bit for
+bit). :class:`Twin` holds the batch state and exposes ``advance`` and the whole-experiment
+runners; :mod:`leglib.virtual_odrive` puts the ODrive object tree on top of a batch of one.
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ import numpy as np
 from numba import get_num_threads, njit, prange, set_parallel_chunksize
 
 from .drive import AxisMap
+from .kernelmath import py_max, py_min, select
 from .kernelmath import sincos as _sincos
 from .kernelmath import tanh as _tanh
 from .model import _fivebar_reduced, param_vector
@@ -140,28 +146,26 @@ def _normal(x):
 @njit(cache=True, inline="always")
 def _oscillation_step(amp, prev, sgn0, count, halves, first, err, min_amp):
     """One sample of :func:`oscillation_update` on its six slots, passed and returned as
-    scalars: (amp, prev, sgn0, count, halves, first, unstable)."""
-    sgn = 1.0 if err > 0 else -1.0
-    if sgn0 == 0.0:
-        sgn0 = sgn
-    flagged = False
-    if sgn != sgn0:
-        halves += 1.0
-        if halves == 2.0:
-            first = amp
-        if halves >= 3.0 and amp > min_amp and amp > OSC_GROWTH * first:
-            flagged = True
-        if amp > min_amp and halves >= 2.0 and prev > 0.0 and amp >= OSC_DECAY * prev:
-            count += 1.0
-        else:
-            count = 0.0
-        prev = amp
-        amp = 0.0
-        sgn0 = sgn
+    scalars: (amp, prev, sgn0, count, halves, first, unstable). Written with selects, not
+    branches (the kernel's loop over legs calls it and vectorizes)."""
+    sgn = select(err > 0, 1.0, -1.0)
+    sgn0 = select(sgn0 == 0.0, sgn, sgn0)
+    flip = sgn != sgn0                      # a half-cycle ends
+    halves_f = halves + 1.0
+    first_f = select(halves_f == 2.0, amp, first)
+    flagged = flip & (halves_f >= 3.0) & (amp > min_amp) & (amp > OSC_GROWTH * first_f)
+    steady = (amp > min_amp) & (halves_f >= 2.0) & (prev > 0.0) & (amp >= OSC_DECAY * prev)
+    counted = count + 1.0
+    count_f = select(steady, counted, 0.0)
+    halves = select(flip, halves_f, halves)
+    first = select(flip, first_f, first)
+    count = select(flip, count_f, count)
+    prev = select(flip, amp, prev)
+    amp = select(flip, 0.0, amp)
+    sgn0 = select(flip, sgn, sgn0)
     e = abs(err)
-    if e > amp:
-        amp = e
-    return amp, prev, sgn0, count, halves, first, flagged or count >= OSC_HALF_CYCLES
+    amp = select(e > amp, e, amp)
+    return amp, prev, sgn0, count, halves, first, flagged | (count >= OSC_HALF_CYCLES)
 
 
 @njit(cache=True)
@@ -353,9 +357,10 @@ def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
     :func:`_run_block`). Returns nothing; everything is updated in place.
     """
     B = X.shape[0]
+    block = min(block, LANES)
     for blk in prange((B + block - 1) // block):
-        _run_block(blk * block, min(B, (blk + 1) * block), n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV,
-                   RNG, ABORT, TT, tt_period, REC, rec_every, rec_offset)
+        _run_block_any(blk * block, min(B, (blk + 1) * block), n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV,
+                       RNG, ABORT, TT, tt_period, REC, rec_every, rec_offset)
 
 
 @njit(cache=True)
@@ -364,9 +369,23 @@ def _run_serial(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
     """:func:`_run` without the thread pool: cheaper per call for a batch of one (a host loop
     advancing the virtual device a few ticks per USB transaction). Same numbers."""
     B = X.shape[0]
+    block = min(block, LANES)
     for b0 in range(0, B, block):
-        _run_block(b0, min(B, b0 + block), n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT,
-                   tt_period, REC, rec_every, rec_offset)
+        _run_block_any(b0, min(B, b0 + block), n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT,
+                       tt_period, REC, rec_every, rec_offset)
+
+
+@njit(cache=True)
+def _run_block_any(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC,
+                   rec_every, rec_offset):
+    """Legs b0..b1-1: vectorized (:func:`_run_block_vector`) when they allow, else
+    :func:`_run_block`; the same numbers either way."""
+    if _vector_block(b0, b1, P, FR, MECH, C, AI):
+        _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT, REC, rec_every,
+                          rec_offset)
+    else:
+        _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC,
+                   rec_every, rec_offset)
 
 
 @njit(cache=True, inline="always")
@@ -395,30 +414,31 @@ def _plain_block(b0, b1, P, FR, MECH):
 
 
 @njit(cache=True, error_model="numpy")
-def _mechanics_plain(dt, QS, TAU, DEAD, NF, P, FR):
-    """One tick of the mechanics of a block of legs that share one plain plant (the exact
-    five-bar, rigid belts, tanh friction without a Stribeck term, no cogging): the
+def _mechanics_plain(dt, FB, IB, nb, P, FR):
+    """One tick of the mechanics of a block of ``nb`` legs that share one plain plant (the
+    exact five-bar, rigid belts, tanh friction without a Stribeck term, no cogging): the
     operations of :func:`_mechanics_leg` in the same order, written with selects instead of
-    branches so that this loop over the legs vectorizes; the numbers are identical. QS =
-    (q1, dq1, q2, dq2, t) by leg; a dead leg (DEAD) keeps its state; NF[i] = 1 where the
-    accelerations came out non-finite (the caller stops the leg)."""
+    branches so that this loop over the legs vectorizes; the numbers are identical. The
+    legs' joints, time and torques are rows of FB (see :data:`R_Q`, :data:`R_TAU`); a dead
+    leg (IB row R_DEAD) keeps its state; IB row R_NF is set where the accelerations came
+    out non-finite (the caller stops the leg)."""
     Pb = _param_row(P, 0)
     visc1, visc2, coul1, coul2 = FR[0, 0], FR[0, 1], FR[0, 2], FR[0, 3]
     strib1, strib2 = 0.0 * FR[0, 4], 0.0 * FR[0, 5]     # what _stribeck gives without one
     inv_v_smooth = 1.0 / FR[0, 7]
     gap_min, k_stop, c_stop, gap_max = FR[0, 8], FR[0, 9], FR[0, 10], FR[0, 13]
-    Q1, DQ1, Q2, DQ2, TT = QS[0], QS[1], QS[2], QS[3], QS[4]
-    TAU1, TAU2 = TAU[0], TAU[1]
-    for i in range(QS.shape[1]):
-        q1, dq1, q2, dq2, t = Q1[i], DQ1[i], Q2[i], DQ2[i], TT[i]
+    for i in range(nb):
+        q1, dq1 = FB[_at(R_Q, i)], FB[_at(R_Q + 1, i)]
+        q2, dq2 = FB[_at(R_Q + 2, i)], FB[_at(R_Q + 3, i)]
+        t = FB[_at(R_Q + 4, i)]
         s_q1, c_q1 = _sincos(q1)
         s_q2, c_q2 = _sincos(q2)
         r5 = _fivebar_reduced(c_q1, s_q1, c_q2, s_q2, dq1, dq2, Pb)
         d11, d12, d22, b1, b2 = r5[0], r5[1], r5[2], r5[3], r5[4]
         f1 = visc1 * dq1 + (coul1 + strib1) * _tanh(dq1 * inv_v_smooth)
         f2 = visc2 * dq2 + (coul2 + strib2) * _tanh(dq2 * inv_v_smooth)
-        t1 = TAU1[i] - b1 - f1
-        t2 = TAU2[i] - b2 - f2
+        t1 = FB[_at(R_TAU, i)] - b1 - f1
+        t2 = FB[_at(R_TAU + 1, i)] - b2 - f2
         gap = q2 - q1
         push = k_stop * (gap_min - gap) - c_stop * (dq2 - dq1)
         pull = k_stop * (gap - gap_max) + c_stop * (dq2 - dq1)
@@ -430,17 +450,17 @@ def _mechanics_plain(dt, QS, TAU, DEAD, NF, P, FR):
         inv_det = 1.0 / det
         a1 = (d22 * t1 - d12 * t2) * inv_det
         a2 = (-d12 * t1 + d11 * t2) * inv_det
-        alive = DEAD[i] == 0
+        alive = IB[_at(R_DEAD, i)] == 0
         ok = math.isfinite(a1) & math.isfinite(a2)
-        NF[i] = 1 if (alive & (not ok)) else 0
+        IB[_at(R_NF, i)] = 1 if (alive & (not ok)) else 0
         go = alive & ok
         dq1n = dq1 + a1 * dt
         dq2n = dq2 + a2 * dt
-        Q1[i] = (q1 + dq1n * dt) if go else q1
-        DQ1[i] = dq1n if go else dq1
-        Q2[i] = (q2 + dq2n * dt) if go else q2
-        DQ2[i] = dq2n if go else dq2
-        TT[i] = (t + dt) if go else t
+        FB[_at(R_Q, i)] = (q1 + dq1n * dt) if go else q1
+        FB[_at(R_Q + 1, i)] = dq1n if go else dq1
+        FB[_at(R_Q + 2, i)] = (q2 + dq2n * dt) if go else q2
+        FB[_at(R_Q + 3, i)] = dq2n if go else dq2
+        FB[_at(R_Q + 4, i)] = (t + dt) if go else t
 
 
 @njit(cache=True)
@@ -502,6 +522,386 @@ def _mechanics_leg(b, k, dt, X, AI, FR, MECH, DRV, ABORT, P, tau, tm, inv_v_stri
     return False
 
 
+# ---------------------------------------------------------------------------------------
+# a block's working copy of its legs' state, laid out by leg (structure of arrays): FB
+# (float) and IB (int) hold rows of LANES entries, one per leg of the block, at rows fixed
+# at compile time, so the compiler sees that the rows do not overlap and vectorizes the
+# loops over the legs without run-time checks
+# ---------------------------------------------------------------------------------------
+
+LANES = 2 * VECTOR_LEGS   # the most legs in a block
+# float rows: the joints and time, the motor torques, then (vectorized block only) per axis
+# its state (V_) and configuration (K_), and the board's (G_)
+R_Q = 0                   # q1, dq1, q2, dq2, t (the X_ order)
+R_TAU = 5                 # joint 0, joint 1 [N*m] on the joint side
+(V_PE, V_VE, V_INT, V_IQ, V_IQM, V_CNTF, V_PSP, V_VSP, V_TSP, V_IBM) = range(10)
+V_OSC = 10
+N_V = V_OSC + N_OSC
+(K_OFF, K_KP, K_KI, K_VL, K_VTOL, K_IPOS, K_IVEL, K_ITQ, K_KT, K_VG, K_CLIM, K_AE, K_PG, K_VIG,
+ K_VIL, K_ALPHA, K_INVKT) = range(17)
+N_K = 17
+(G_BRAKE_ON, G_BRAKE_R, G_MAX_REGEN, G_DCP, G_DCN, G_VBUS, G_STYLE, G_INV_VBUS, G_INV_BRAKE_R, G_IBUS,
+ G_BRAKE_I, G_IBUS_AXES) = range(12)
+N_G = 12
+R_V0, R_V1 = 7, 7 + N_V                       # axis 0, axis 1
+R_K0, R_K1 = 7 + 2 * N_V, 7 + 2 * N_V + N_K
+R_G = 7 + 2 * N_V + 2 * N_K
+N_FROWS = R_G + N_G
+# int rows: per axis (W_), then per leg
+W_MODE, W_AXERR, W_CTRLERR, W_MOTERR, W_COUNTS = range(5)
+N_W = 5
+R_W0, R_W1 = 0, N_W
+R_DEAD = 2 * N_W          # 1: stopped for good (non-finite mechanics)
+R_NF = R_DEAD + 1         # set by the mechanics: non-finite this tick
+R_SYS = R_DEAD + 2        # the board's error
+R_AB = R_DEAD + 3         # abort tick, abort reason
+R_RNG = R_DEAD + 5        # the noise stream's state (its bits)
+R_CODE = R_DEAD + 6       # the abort code the axes raised this tick
+N_IROWS = R_CODE + 1
+
+
+@njit(cache=True, inline="always")
+def _at(row, i):
+    """Index of leg ``i`` in row ``row`` of a block's FB or IB; unsigned, so the compiler
+    adds no wraparound of negative indices (which hides the rows' independence)."""
+    return np.uint64(row * LANES + i)
+
+
+@njit(cache=True)
+def _vector_block(b0, b1, P, FR, MECH, C, AI):
+    """Whether legs b0..b1-1 can take :func:`_run_block_vector`: a plain plant (see
+    :func:`_plain_block`) without an encoder reading error, and every axis in position
+    control or IDLE with its inputs passed through and no watchdog."""
+    if not _plain_block(b0, b1, P, FR, MECH):
+        return False
+    for b in range(b0, b1):
+        if FR[b, F_ENC_ON] > 0.0:
+            return False
+        for a in range(2):
+            mode = AI[b, a, I_MODE]
+            if mode != MODE_IDLE and mode != MODE_POSITION:
+                return False
+            if C[b, a, C_INPUT_MODE] != INPUT_MODE_PASSTHROUGH or C[b, a, C_WD_ENABLE] > 0.0:
+                return False
+    return True
+
+
+@njit(cache=True, inline="always")
+def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, cpr, inv_cpr, enc_noise,
+                 cur_noise, quantize, N, kt_true, r_phase, inv_vbus):
+    """One tick of axis ``a`` (a constant) of leg ``i`` of a vectorized block, its joint at
+    ``q``: what the per-leg controller of :func:`_run_block` does for an axis in position
+    control or IDLE with passthrough inputs, the same operations in the same order,
+    branches turned into selects. Returns (rng, joint torque, bus current, abort code)."""
+    rv, rk, rw = R_V0 + a * N_V, R_K0 + a * N_K, R_W0 + a * N_W
+    # encoder and PLL: every tick, IDLE included
+    turns = dirn * (q - q_rest) * turns_per_rad
+    rng1, nz = _normal(rng)
+    raw = turns * cpr + enc_noise * nz
+    off = FB[_at(rk + K_OFF, i)]
+    rounded = math.floor(raw + 0.5)
+    counts = select(quantize, rounded, raw) + off
+    kp = FB[_at(rk + K_KP, i)]
+    ki = FB[_at(rk + K_KI, i)]
+    pe0 = FB[_at(rv + V_PE, i)]
+    ve0 = FB[_at(rv + V_VE, i)]
+    pe = pe0 + dt * ve0
+    delta = counts * inv_cpr - pe
+    pe += dt * kp * delta
+    ve = ve0 + dt * ki * delta
+    below = abs(ve) < 0.5 * dt * ki * inv_cpr
+    ve = select(below, 0.0, ve)
+    # the board's check, then overspeed
+    mode0 = IB[_at(rw + W_MODE, i)]
+    axis_err0 = IB[_at(rw + W_AXERR, i)]
+    mode = select(axis_err0 != 0, MODE_IDLE, mode0)
+    vel_limit = FB[_at(rk + K_VL, i)]
+    over = (mode != MODE_IDLE) & (abs(ve) > vel_limit * FB[_at(rk + K_VTOL, i)])
+    ctrl_err = IB[_at(rw + W_CTRLERR, i)] | select(over, CONTROLLER_ERROR_OVERSPEED, 0)
+    axis_err = axis_err0 | select(over, AXIS_ERROR_CONTROLLER_FAILED, 0)
+    active = (mode != MODE_IDLE) & (not over)
+    # position control with passthrough inputs
+    pos_sp = FB[_at(rk + K_IPOS, i)]
+    vel_in = FB[_at(rk + K_IVEL, i)]
+    tq_in = FB[_at(rk + K_ITQ, i)]
+    kt = FB[_at(rk + K_KT, i)]
+    vel_gain = FB[_at(rk + K_VG, i)]
+    current_lim = FB[_at(rk + K_CLIM, i)]
+    t_lim = current_lim * kt
+    abort_error = FB[_at(rk + K_AE, i)]
+    err = pos_sp - pe
+    checked = active & (abort_error > 0.0)
+    too_far = checked & (abs(err) > abort_error)
+    osc_on = checked & (not too_far)
+    o0, o1, o2 = FB[_at(rv + V_OSC, i)], FB[_at(rv + V_OSC + 1, i)], FB[_at(rv + V_OSC + 2, i)]
+    o3, o4, o5 = FB[_at(rv + V_OSC + 3, i)], FB[_at(rv + V_OSC + 4, i)], FB[_at(rv + V_OSC + 5, i)]
+    n0, n1, n2, n3, n4, n5, unstable = _oscillation_step(o0, o1, o2, o3, o4, o5, err, 0.025 * abort_error)
+    growing = osc_on & unstable
+    code_a = select(too_far, ABORT_POSITION_ERROR, select(growing, ABORT_OSCILLATION, ABORT_NONE))
+    vel_sp = py_min(py_max(vel_in, -vel_limit), vel_limit)
+    vel_des = FB[_at(rk + K_PG, i)] * (pos_sp - pe) + vel_sp
+    vel_des = py_min(py_max(vel_des, -vel_limit), vel_limit)
+    verr = vel_des - ve
+    integ0 = FB[_at(rv + V_INT, i)]
+    torque = vel_gain * verr + integ0 + tq_in
+    limited = (torque > t_lim) | (torque < -t_lim)
+    neg_t_lim = -t_lim
+    torque = select(torque > t_lim, t_lim, select(torque < neg_t_lim, neg_t_lim, torque))
+    decayed = integ0 * 0.99
+    grown = integ0 + FB[_at(rk + K_VIG, i)] * dt * verr
+    integ = select(limited, decayed, grown)
+    lim = FB[_at(rk + K_VIL, i)]
+    integ = py_min(py_max(integ, -lim), lim)
+    iq0 = FB[_at(rv + V_IQ, i)]
+    iq = iq0 + FB[_at(rk + K_ALPHA, i)] * (torque * FB[_at(rk + K_INVKT, i)] - iq0)
+    rng2, nz = _normal(rng1)
+    iq_meas = iq + cur_noise * nz
+    violated = active & (abs(iq_meas) > current_lim + CURRENT_LIM_MARGIN)
+    motor_err = IB[_at(rw + W_MOTERR, i)] | select(violated, MOTOR_ERROR_CURRENT_LIMIT_VIOLATION, 0)
+    axis_err = axis_err | select(violated, AXIS_ERROR_MOTOR_FAILED, 0)
+    iq = select(violated, 0.0, iq)
+    tau = dirn * N * kt_true * iq
+    w = ve * (2.0 * math.pi)
+    ib = (1.5 * r_phase * iq * iq + kt_true * iq * w) * inv_vbus
+    # write back: a dead leg keeps everything; an IDLE axis zeroes its outputs (the old
+    # values loaded first: a select between two loaded values vectorizes, a load
+    # under a condition does not)
+    cntf0 = FB[_at(rv + V_CNTF, i)]
+    counts_i0 = IB[_at(rw + W_COUNTS, i)]
+    iqm0 = FB[_at(rv + V_IQM, i)]
+    ibm0 = FB[_at(rv + V_IBM, i)]
+    psp0, vsp0, tsp0 = FB[_at(rv + V_PSP, i)], FB[_at(rv + V_VSP, i)], FB[_at(rv + V_TSP, i)]
+    ctrl_err0 = IB[_at(rw + W_CTRLERR, i)]
+    motor_err0 = IB[_at(rw + W_MOTERR, i)]
+    run = alive & active
+    idle = alive & (not active)
+    osc_new = run & osc_on
+    FB[_at(rv + V_PE, i)] = select(alive, pe, pe0)
+    FB[_at(rv + V_VE, i)] = select(alive, ve, ve0)
+    FB[_at(rv + V_CNTF, i)] = select(alive, counts, cntf0)
+    counts_i = np.int64(rounded + off)
+    IB[_at(rw + W_COUNTS, i)] = select(alive, counts_i, counts_i0)
+    FB[_at(rv + V_INT, i)] = select(run, integ, select(idle, 0.0, integ0))
+    FB[_at(rv + V_IQ, i)] = select(run, iq, select(idle, 0.0, iq0))
+    FB[_at(rv + V_IQM, i)] = select(run, iq_meas, select(idle, 0.0, iqm0))
+    FB[_at(rv + V_IBM, i)] = select(run, ib, select(idle, 0.0, ibm0))
+    FB[_at(rv + V_PSP, i)] = select(run, pos_sp, psp0)
+    FB[_at(rv + V_VSP, i)] = select(run, vel_in, vsp0)
+    FB[_at(rv + V_TSP, i)] = select(run, tq_in, tsp0)
+    FB[_at(rv + V_OSC, i)] = select(osc_new, n0, o0)
+    FB[_at(rv + V_OSC + 1, i)] = select(osc_new, n1, o1)
+    FB[_at(rv + V_OSC + 2, i)] = select(osc_new, n2, o2)
+    FB[_at(rv + V_OSC + 3, i)] = select(osc_new, n3, o3)
+    FB[_at(rv + V_OSC + 4, i)] = select(osc_new, n4, o4)
+    FB[_at(rv + V_OSC + 5, i)] = select(osc_new, n5, o5)
+    stopped = violated | (not active)
+    mode_new = select(stopped, MODE_IDLE, mode)
+    IB[_at(rw + W_MODE, i)] = select(alive, mode_new, mode0)
+    IB[_at(rw + W_AXERR, i)] = select(alive, axis_err, axis_err0)
+    IB[_at(rw + W_CTRLERR, i)] = select(alive, ctrl_err, ctrl_err0)
+    IB[_at(rw + W_MOTERR, i)] = select(alive, motor_err, motor_err0)
+    rng_out = select(run, rng2, select(alive, rng1, rng))
+    return rng_out, select(run, tau, 0.0), select(run, ib, 0.0), select(run, code_a, ABORT_NONE)
+
+
+@njit(cache=True, inline="always")
+def _stop_axis(i, a, FB, IB, fault, stop, motor_flag):
+    """Axis ``a`` (a constant) of leg ``i`` of a vectorized block after the bus check: a
+    bus fault's error flags, and for a fault or an abort (``stop``) IDLE, no current, the
+    integrator cleared."""
+    rv, rw = R_V0 + a * N_V, R_W0 + a * N_W
+    motor_err0, axis_err0, mode0 = IB[_at(rw + W_MOTERR, i)], IB[_at(rw + W_AXERR, i)], IB[_at(rw + W_MODE, i)]
+    iq0, integ0 = FB[_at(rv + V_IQ, i)], FB[_at(rv + V_INT, i)]
+    IB[_at(rw + W_MOTERR, i)] = motor_err0 | select(fault, motor_flag, 0)
+    IB[_at(rw + W_AXERR, i)] = axis_err0 | select(fault, AXIS_ERROR_MOTOR_FAILED, 0)
+    IB[_at(rw + W_MODE, i)] = select(stop, MODE_IDLE, mode0)
+    FB[_at(rv + V_IQ, i)] = select(stop, 0.0, iq0)
+    FB[_at(rv + V_INT, i)] = select(stop, 0.0, integ0)
+
+
+@njit(cache=True, error_model="numpy")
+def _control_vector(k, dt, FB, IB, nb, DRV):
+    """The controllers of a vectorized block for tick ``k``: one loop over its ``nb`` legs
+    doing what the per-leg controller of :func:`_run_block` does for axes in position
+    control or IDLE with passthrough inputs (the same operations in the same order,
+    branches turned into selects), then the DC bus and the safety abort. The state and
+    configuration of axis ``a`` are at rows R_V0/R_K0/R_W0 + a * N_V/N_K/N_W."""
+    N, cpr, dirn = DRV[0], DRV[1], DRV[2]
+    enc_noise, cur_noise, kt_true, r_phase = DRV[6], DRV[7], DRV[8], DRV[11]
+    quantize = DRV[9] > 0.0
+    j_of_a0 = int(DRV[5])
+    q_rest_joint0, q_rest_joint1 = DRV[3], DRV[4]
+    turns_per_rad = N / (2.0 * math.pi)
+    inv_cpr = 1.0 / cpr
+    for i in range(nb):
+        alive = IB[_at(R_DEAD, i)] == 0
+        inv_vbus = FB[_at(R_G + G_INV_VBUS, i)]
+        rng = np.uint64(IB[_at(R_RNG, i)])
+        ibus_sum = 0.0
+        # the joints' angles, read from fixed rows (a row chosen at run time would keep
+        # the compiler from proving the accesses independent)
+        q_joint0, q_joint1 = FB[_at(R_Q, i)], FB[_at(R_Q + 2, i)]
+        axis0_on_joint0 = j_of_a0 == 0
+        rng, tau_axis0, ib0, code0 = _axis_vector(
+            i, 0, FB, IB, select(axis0_on_joint0, q_joint0, q_joint1),
+            select(axis0_on_joint0, q_rest_joint0, q_rest_joint1), rng, alive, dt, dirn, turns_per_rad, cpr,
+            inv_cpr, enc_noise, cur_noise, quantize, N, kt_true, r_phase, inv_vbus)
+        rng, tau_axis1, ib1, code1 = _axis_vector(
+            i, 1, FB, IB, select(axis0_on_joint0, q_joint1, q_joint0),
+            select(axis0_on_joint0, q_rest_joint1, q_rest_joint0), rng, alive, dt, dirn, turns_per_rad, cpr,
+            inv_cpr, enc_noise, cur_noise, quantize, N, kt_true, r_phase, inv_vbus)
+        ibus_sum += ib0
+        ibus_sum += ib1
+        code = select(code1 != ABORT_NONE, code1, code0)
+        IB[_at(R_RNG, i)] = np.int64(rng)
+        FB[_at(R_TAU, i)] = select(axis0_on_joint0, tau_axis0, tau_axis1)
+        FB[_at(R_TAU + 1, i)] = select(axis0_on_joint0, tau_axis1, tau_axis0)
+        FB[_at(R_G + G_IBUS_AXES, i)] = ibus_sum
+        IB[_at(R_CODE, i)] = code
+    # a second loop for the board: one loop for everything would hold more memory accesses
+    # than the compiler groups for its run-time overlap checks, and it would not vectorize
+    for i in range(nb):
+        alive = IB[_at(R_DEAD, i)] == 0
+        inv_vbus = FB[_at(R_G + G_INV_VBUS, i)]
+        ibus_sum = FB[_at(R_G + G_IBUS_AXES, i)]
+        code = IB[_at(R_CODE, i)]
+        tau_joint0, tau_joint1 = FB[_at(R_TAU, i)], FB[_at(R_TAU + 1, i)]
+        # the DC bus: brake resistor, then the bus limits
+        brake = FB[_at(R_G + G_BRAKE_ON, i)] > 0.0
+        brake_i = -ibus_sum - FB[_at(R_G + G_MAX_REGEN, i)]
+        duty = brake_i * FB[_at(R_G + G_BRAKE_R, i)] * inv_vbus
+        duty = py_min(py_max(duty, 0.0), 0.95)
+        braking = duty * FB[_at(R_G + G_VBUS, i)] * FB[_at(R_G + G_INV_BRAKE_R, i)]
+        brake_i = select(brake, braking, 0.0)
+        with_brake = ibus_sum + brake_i
+        ibus_sum = select(brake, with_brake, ibus_sum)
+        brake_i0, ibus0 = FB[_at(R_G + G_BRAKE_I, i)], FB[_at(R_G + G_IBUS, i)]
+        FB[_at(R_G + G_BRAKE_I, i)] = select(alive, brake_i, brake_i0)
+        FB[_at(R_G + G_IBUS, i)] = select(alive, ibus_sum, ibus0)
+        over_pos = ibus_sum > FB[_at(R_G + G_DCP, i)]
+        over_neg = (not over_pos) & (ibus_sum < FB[_at(R_G + G_DCN, i)])
+        fault = alive & (over_pos | over_neg)
+        old_style = FB[_at(R_G + G_STYLE, i)] > 0.0
+        bus_flag = select(over_neg, MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT, MOTOR_ERROR_DC_BUS_OVER_CURRENT)
+        motor_flag = select(old_style, bus_flag, MOTOR_ERROR_SYSTEM_LEVEL)
+        sys_flag = select(over_neg, ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT, ODRIVE_ERROR_DC_BUS_OVER_CURRENT)
+        IB[_at(R_SYS, i)] = IB[_at(R_SYS, i)] | select(fault & (not old_style), sys_flag, 0)
+        # a bus fault or an abort: both axes IDLE, no current, integrators cleared
+        stop = fault | (alive & (code != ABORT_NONE))
+        _stop_axis(i, 0, FB, IB, fault, stop, motor_flag)
+        _stop_axis(i, 1, FB, IB, fault, stop, motor_flag)
+        FB[_at(R_TAU, i)] = select(stop, 0.0, tau_joint0)
+        FB[_at(R_TAU + 1, i)] = select(stop, 0.0, tau_joint1)
+        ab_tick, ab_reason = IB[_at(R_AB, i)], IB[_at(R_AB + 1, i)]
+        first = alive & (code != ABORT_NONE) & (ab_reason == ABORT_NONE)
+        IB[_at(R_AB, i)] = select(first, k, ab_tick)
+        IB[_at(R_AB + 1, i)] = select(first, code, ab_reason)
+
+
+@njit(cache=True)
+def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT, REC, rec_every,
+                      rec_offset):
+    """Legs b0..b1-1 of :func:`_run` when :func:`_vector_block` allows: the state copied
+    into the block's rows, then per tick one loop over the legs for the controllers
+    (:func:`_control_vector`) and one for the mechanics (:func:`_mechanics_plain`), both
+    of which vectorize; the numbers are those of :func:`_run_block`."""
+    nb = b1 - b0
+    FB = np.zeros(N_FROWS * LANES)
+    IB = np.zeros(N_IROWS * LANES, np.int64)
+    f_slots = (S_POS_EST, S_VEL_EST, S_INTEGRATOR, S_IQ, S_IQ_MEAS, S_COUNT_F, S_POS_SP, S_VEL_SP, S_TQ_SP,
+               S_IBUS_MOTOR, S_OSC, S_OSC + 1, S_OSC + 2, S_OSC + 3, S_OSC + 4, S_OSC + 5)
+    w_slots = (I_MODE, I_AXIS_ERR, I_CTRL_ERR, I_MOTOR_ERR, I_COUNTS)
+    for i in range(nb):
+        b = b0 + i
+        for n in range(5):
+            FB[_at(R_Q + n, i)] = X[b, n]
+        IB[_at(R_DEAD, i)] = 1 if ABORT[b, 1] == ABORT_NONFINITE else 0
+        IB[_at(R_RNG, i)] = np.int64(RNG[b])
+        for a in range(2):
+            rv = R_V0 if a == 0 else R_V1
+            rk = R_K0 if a == 0 else R_K1
+            rw = R_W0 if a == 0 else R_W1
+            for n in range(N_V):
+                FB[_at(rv + n, i)] = AS[b, a, f_slots[n]]
+            for n in range(N_W):
+                IB[_at(rw + n, i)] = AI[b, a, w_slots[n]]
+            kp = 2.0 * C[b, a, C_ENCODER_BW]
+            FB[_at(rk + K_OFF, i)] = C[b, a, C_COUNT_OFFSET]
+            FB[_at(rk + K_KP, i)] = kp
+            FB[_at(rk + K_KI, i)] = 0.25 * kp * kp
+            FB[_at(rk + K_VL, i)] = C[b, a, C_VEL_LIMIT]
+            FB[_at(rk + K_VTOL, i)] = C[b, a, C_VEL_TOL]
+            FB[_at(rk + K_IPOS, i)] = C[b, a, C_INPUT_POS]
+            FB[_at(rk + K_IVEL, i)] = C[b, a, C_INPUT_VEL]
+            FB[_at(rk + K_ITQ, i)] = C[b, a, C_INPUT_TORQUE]
+            FB[_at(rk + K_KT, i)] = C[b, a, C_KT]
+            FB[_at(rk + K_VG, i)] = C[b, a, C_VEL_GAIN]
+            FB[_at(rk + K_CLIM, i)] = C[b, a, C_CURRENT_LIM]
+            FB[_at(rk + K_AE, i)] = C[b, a, C_ABORT_ERROR]
+            FB[_at(rk + K_PG, i)] = C[b, a, C_POS_GAIN]
+            FB[_at(rk + K_VIG, i)] = C[b, a, C_VEL_INT_GAIN]
+            FB[_at(rk + K_VIL, i)] = C[b, a, C_VEL_INT_LIMIT]
+            FB[_at(rk + K_ALPHA, i)] = 1.0 - math.exp(-C[b, a, C_CURRENT_BW] * dt)
+            FB[_at(rk + K_INVKT, i)] = 1.0 / C[b, a, C_KT]
+        FB[_at(R_G + G_BRAKE_ON, i)] = C[b, 0, C_BRAKE_ON]
+        FB[_at(R_G + G_BRAKE_R, i)] = C[b, 0, C_BRAKE_R]
+        FB[_at(R_G + G_MAX_REGEN, i)] = C[b, 0, C_MAX_REGEN]
+        FB[_at(R_G + G_DCP, i)] = C[b, 0, C_DC_MAX_POS]
+        FB[_at(R_G + G_DCN, i)] = C[b, 0, C_DC_MAX_NEG]
+        FB[_at(R_G + G_VBUS, i)] = C[b, 0, C_VBUS]
+        FB[_at(R_G + G_STYLE, i)] = C[b, 0, C_REGEN_ERR_STYLE]
+        FB[_at(R_G + G_INV_VBUS, i)] = 1.0 / C[b, 0, C_VBUS]
+        FB[_at(R_G + G_INV_BRAKE_R, i)] = 1.0 / C[b, 0, C_BRAKE_R]
+        FB[_at(R_G + G_IBUS, i)] = AS[b, 0, S_IBUS]
+        FB[_at(R_G + G_BRAKE_I, i)] = AS[b, 0, S_BRAKE_I]
+        IB[_at(R_SYS, i)] = AI[b, 0, I_SYS_ERR]
+        IB[_at(R_AB, i)] = ABORT[b, 0]
+        IB[_at(R_AB + 1, i)] = ABORT[b, 1]
+    P_plain = P[b0:b0 + 1]
+    FR_plain = FR[b0:b0 + 1]
+    n_rec = REC.shape[1]
+    next_rec = 0 if rec_every > 0 else -1
+    for k in range(n_ticks):
+        if k == next_rec:
+            next_rec += rec_every
+            r = rec_offset + k // rec_every
+            if 0 <= r < n_rec:
+                for i in range(nb):
+                    if IB[_at(R_DEAD, i)] == 0:
+                        b = b0 + i
+                        REC[b, r, 0] = FB[_at(R_Q + 4, i)]
+                        REC[b, r, 1] = FB[_at(R_V0 + V_CNTF, i)]
+                        REC[b, r, 2] = FB[_at(R_V1 + V_CNTF, i)]
+                        REC[b, r, 3] = FB[_at(R_V0 + V_IQM, i)]
+                        REC[b, r, 4] = FB[_at(R_V1 + V_IQM, i)]
+        _control_vector(k, dt, FB, IB, nb, DRV)
+        _mechanics_plain(dt, FB, IB, nb, P_plain, FR_plain)
+        for i in range(nb):
+            if IB[_at(R_NF, i)] != 0:
+                IB[_at(R_AB, i)] = k
+                IB[_at(R_AB + 1, i)] = ABORT_NONFINITE
+                IB[_at(R_W0 + W_MODE, i)] = MODE_IDLE
+                IB[_at(R_W1 + W_MODE, i)] = MODE_IDLE
+                IB[_at(R_DEAD, i)] = 1
+    for i in range(nb):
+        b = b0 + i
+        for n in range(5):
+            X[b, n] = FB[_at(R_Q + n, i)]
+        RNG[b] = np.uint64(IB[_at(R_RNG, i)])
+        for a in range(2):
+            rv = R_V0 if a == 0 else R_V1
+            rw = R_W0 if a == 0 else R_W1
+            for n in range(N_V):
+                AS[b, a, f_slots[n]] = FB[_at(rv + n, i)]
+            for n in range(N_W):
+                AI[b, a, w_slots[n]] = IB[_at(rw + n, i)]
+        AS[b, 0, S_IBUS] = FB[_at(R_G + G_IBUS, i)]
+        AS[b, 0, S_BRAKE_I] = FB[_at(R_G + G_BRAKE_I, i)]
+        AI[b, 0, I_SYS_ERR] = IB[_at(R_SYS, i)]
+        ABORT[b, 0] = IB[_at(R_AB, i)]
+        ABORT[b, 1] = IB[_at(R_AB + 1, i)]
+
+
 @njit(cache=True)
 def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC,
                rec_every, rec_offset):
@@ -526,11 +926,11 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
     ALPHA, INV_KT = np.empty((nb, 2)), np.empty((nb, 2))
     INV_VBUS, INV_BRAKE_R = np.empty(nb), np.empty(nb)
     INV_VS, INV_VSM = np.empty(nb), np.empty(nb)
-    QS = np.empty((5, nb))     # (q1, dq1, q2, dq2, t) of each leg during the call
-    DEAD = np.zeros(nb, np.int64)
-    NF = np.zeros(nb, np.int64)
+    # the legs' joints, time, torques, dead and non-finite flags in the block's rows
+    FB = np.zeros(N_FROWS * LANES)
+    IB = np.zeros(N_IROWS * LANES, np.int64)
+    tau2 = np.empty(2)         # one leg's motor torques (the belt and cogging modify them)
     RNGL = np.empty(nb, np.uint64)
-    TAU = np.zeros((2, nb))    # the motor torques on the joint side, by joint
     TM = np.zeros((nb, 2))     # the motor torques on the rotors (compliant belt)
     for i in range(nb):
         b = b0 + i
@@ -540,8 +940,8 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
         INV_VBUS[i], INV_BRAKE_R[i] = 1.0 / C[b, 0, C_VBUS], 1.0 / C[b, 0, C_BRAKE_R]
         INV_VS[i], INV_VSM[i] = 1.0 / FR[b, 6], 1.0 / FR[b, 7]
         for n in range(5):
-            QS[n, i] = X[b, n]
-        DEAD[i] = 1 if ABORT[b, 1] == ABORT_NONFINITE else 0
+            FB[_at(R_Q + n, i)] = X[b, n]
+        IB[_at(R_DEAD, i)] = 1 if ABORT[b, 1] == ABORT_NONFINITE else 0
         RNGL[i] = RNG[b]
     plain = _plain_block(b0, b1, P, FR, MECH)
     P_plain = P[b0:b0 + 1]
@@ -553,12 +953,12 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
             next_rec += rec_every
             rec_row = rec_offset + k // rec_every
         for i in range(nb):
-            if DEAD[i] != 0:
+            if IB[_at(R_DEAD, i)] != 0:
                 continue
             b = b0 + i
             # ---- record (before the tick, so row 0 is the initial state)
             if 0 <= rec_row < n_rec:
-                REC[b, rec_row, 0] = QS[4, i]
+                REC[b, rec_row, 0] = FB[_at(R_Q + 4, i)]
                 REC[b, rec_row, 1] = AS[b, 0, S_COUNT_F]
                 REC[b, rec_row, 2] = AS[b, 1, S_COUNT_F]
                 REC[b, rec_row, 3] = AS[b, 0, S_IQ_MEAS]
@@ -581,7 +981,7 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
             ibus_sum = 0.0
             for a in range(2):
                 j = j_of_a0 if a == 0 else 1 - j_of_a0
-                q = QS[2 * j, i]
+                q = FB[_at(R_Q + 2 * j, i)]
                 if FR[b, F_BELT_K] > 0.0:       # compliant belt: the encoder is on the rotor
                     q = X[b, X_PHI1 + 2 * j]
                 turns = dirn * (q - DRV[3 + j]) * turns_per_rad
@@ -621,7 +1021,7 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
                     rng, nz = _normal(rng)
                     AS[b, a, S_IQ_MEAS] = iq + cur_noise * nz
                     AS[b, a, S_INTEGRATOR] = 0.0
-                    TAU[j, i] = dirn * N * DRV[8] * iq
+                    FB[_at(R_TAU + j, i)] = dirn * N * DRV[8] * iq
                     w = AS[b, a, S_VEL_EST] * two_pi
                     ib = (1.5 * DRV[11] * i_now ** 2 + DRV[8] * iq * w) * INV_VBUS[i]
                     AS[b, a, S_IBUS_MOTOR] = ib
@@ -638,7 +1038,7 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
                     AS[b, a, S_INTEGRATOR] = 0.0
                     AS[b, a, S_IQ_MEAS] = 0.0
                     AS[b, a, S_IBUS_MOTOR] = 0.0
-                    TAU[j, i] = 0.0
+                    FB[_at(R_TAU + j, i)] = 0.0
                     continue
                 # ---- input modes (controller.cpp:183-283): setpoints from the inputs
                 imode = int(C[b, a, C_INPUT_MODE])
@@ -747,7 +1147,7 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
                     iq = 0.0
                 # the motor's own torque constant makes the torque; the configured one only
                 # converts the torque command to a current
-                TAU[j, i] = dirn * N * DRV[8] * iq
+                FB[_at(R_TAU + j, i)] = dirn * N * DRV[8] * iq
                 # this motor's bus current: copper loss plus mechanical power over vbus
                 w = ve * two_pi
                 ib = (1.5 * DRV[11] * iq * iq + DRV[8] * iq * w) * INV_VBUS[i]
@@ -782,46 +1182,47 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
                 if C[b, 0, C_REGEN_ERR_STYLE] <= 0.0:
                     AI[b, 0, I_SYS_ERR] |= (ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT if bus_fault == 2
                                             else ODRIVE_ERROR_DC_BUS_OVER_CURRENT)
-                TAU[0, i] = 0.0
-                TAU[1, i] = 0.0
+                FB[_at(R_TAU + 0, i)] = 0.0
+                FB[_at(R_TAU + 1, i)] = 0.0
             if abort_now:
                 for a in range(2):
                     AI[b, a, I_MODE] = MODE_IDLE
                     AS[b, a, S_IQ] = 0.0
                     AS[b, a, S_INTEGRATOR] = 0.0
-                TAU[0, i] = 0.0
-                TAU[1, i] = 0.0
+                FB[_at(R_TAU + 0, i)] = 0.0
+                FB[_at(R_TAU + 1, i)] = 0.0
                 if ABORT[b, 1] == ABORT_NONE:
                     ABORT[b, 0] = k
                     ABORT[b, 1] = abort_code
             RNGL[i] = rng
         # ---- mechanics
         if plain:
-            _mechanics_plain(dt, QS, TAU, DEAD, NF, P_plain, FR_plain)
+            _mechanics_plain(dt, FB, IB, nb, P_plain, FR_plain)
             for i in range(nb):
-                if NF[i] != 0:
+                if IB[_at(R_NF, i)] != 0:
                     b = b0 + i
                     ABORT[b, 0] = k
                     ABORT[b, 1] = ABORT_NONFINITE
                     for a in range(2):
                         AI[b, a, I_MODE] = MODE_IDLE
-                    DEAD[i] = 1
+                    IB[_at(R_DEAD, i)] = 1
         else:
             for i in range(nb):
-                if DEAD[i] != 0:
+                if IB[_at(R_DEAD, i)] != 0:
                     continue
                 b = b0 + i
                 for n in range(5):
-                    X[b, n] = QS[n, i]
-                if _mechanics_leg(b, k, dt, X, AI, FR, MECH, DRV, ABORT, P, TAU[:, i], TM[i], INV_VS[i],
+                    X[b, n] = FB[_at(R_Q + n, i)]
+                tau2[0], tau2[1] = FB[_at(R_TAU, i)], FB[_at(R_TAU + 1, i)]
+                if _mechanics_leg(b, k, dt, X, AI, FR, MECH, DRV, ABORT, P, tau2, TM[i], INV_VS[i],
                                   INV_VSM[i]):
-                    DEAD[i] = 1
+                    IB[_at(R_DEAD, i)] = 1
                 for n in range(5):
-                    QS[n, i] = X[b, n]
+                    FB[_at(R_Q + n, i)] = X[b, n]
     for i in range(nb):
         b = b0 + i
         for n in range(5):
-            X[b, n] = QS[n, i]
+            X[b, n] = FB[_at(R_Q + n, i)]
         RNG[b] = RNGL[i]
 
 

@@ -270,16 +270,23 @@ def test_usb_polling_path_on_the_twin_agrees_with_the_kernel_path():
     assert all(int(dev.get(a, "current_state")) == 1 for a in (0, 1))
 
 
-def test_the_vectorized_mechanics_give_the_leg_by_leg_numbers():
-    """A block of legs that share a plain plant advances its mechanics in one loop over the
-    legs (_mechanics_plain, which vectorizes); a block holding a leg of another plant goes
-    leg by leg (_mechanics_leg). For the same legs both give the same numbers, bit for bit:
-    noisy steps, an unstable point that the safety abort stops included."""
+def test_a_vectorized_block_gives_the_leg_by_leg_numbers():
+    """A block of legs that share a plain plant, every axis in position control or IDLE,
+    runs vectorized (_run_block_vector: controllers and mechanics each one loop over the
+    legs, branches turned into selects); a block holding one leg of another plant runs leg
+    by leg (_run_block). For the same legs both give the same numbers, bit for bit, through
+    every event the vectorized controller handles: noise, the safety abort, overspeed, a
+    regenerative bus fault (both error styles), an axis left IDLE."""
     tw = T.Twin(seed=4)
     gains = np.array([[20, 0.02, 0.01], [50, 0.046, 0.001], [35, 0.1, 0.05], [200, 0.5, 5.0],
                       [5, 0.001, 0.0], [80, 0.03, 0.2], [12, 0.2, 0.0], [60, 0.06, 0.02], [40, 0.01, 0.3]])
     B = len(gains)
     start = tw.step_batch(gains, duration=0.0)["final"]   # prepared for the step, not yet run
+    start.C[1, :, T.C_VEL_TOL] = 0.02                     # overspeed at once
+    start.C[2, 0, T.C_BRAKE_ON] = 0.0                     # no brake resistor: regen trips the bus
+    start.C[6, 0, T.C_BRAKE_ON] = 0.0
+    start.C[6, 0, T.C_REGEN_ERR_STYLE] = 1.0              # ... with 0.5.1's error flags
+    start.AI[7, 1, T.I_MODE] = T.MODE_IDLE                # one axis left IDLE
 
     def run(st, P, FR, block):
         rec = np.zeros((st.batch, 400, 5))
@@ -290,12 +297,19 @@ def test_the_vectorized_mechanics_give_the_leg_by_leg_numbers():
     P = np.ascontiguousarray(np.broadcast_to(tw.P, (B + 1, tw.P.size)))
     FR = np.ascontiguousarray(np.broadcast_to(tw.FR, (B + 1, tw.FR.size)))
     FR[B, 0] *= 1.5   # one more leg, of another plant: its block is not plain
-    assert T._plain_block(0, B, P, FR, np.zeros(B + 1, np.int64))
-    assert not T._plain_block(0, B + 1, P, FR, np.zeros(B + 1, np.int64))
+    MECH = np.zeros(B + 1, np.int64)
+    mixed = start.take(list(range(B)) + [0])
+    assert T._vector_block(0, B, P, FR, MECH, start.C, start.AI)
+    assert not T._vector_block(0, B + 1, P, FR, MECH, mixed.C, mixed.AI)
     vec, rec_vec = run(start.copy(), P[:B], FR[:B], B)
-    leg, rec_leg = run(start.take(list(range(B)) + [0]), P, FR, B + 1)
-    assert (vec.ABORT[:, 1] != T.ABORT_NONE).sum() >= 1   # an unstable point was stopped
+    leg, rec_leg = run(mixed, P, FR, B + 1)
+    # the events happened
+    assert (vec.ABORT[:, 1] != T.ABORT_NONE).sum() >= 1
+    assert vec.AI[1, 0, T.I_CTRL_ERR] & T.CONTROLLER_ERROR_OVERSPEED
+    assert vec.AI[2, 0, T.I_SYS_ERR] & T.ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT
+    assert vec.AI[6, 0, T.I_MOTOR_ERR] & T.MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT
+    assert vec.AI[7, 0, T.I_MODE] == T.MODE_POSITION and vec.AI[7, 1, T.I_MODE] == T.MODE_IDLE
+    # and came out the same
     np.testing.assert_array_equal(rec_vec, rec_leg[:B])
-    np.testing.assert_array_equal(vec.X, leg.X[:B])
-    np.testing.assert_array_equal(vec.AS, leg.AS[:B])
-    np.testing.assert_array_equal(vec.ABORT, leg.ABORT[:B])
+    for name in ("X", "AS", "AI", "ABORT", "RNG"):
+        np.testing.assert_array_equal(getattr(vec, name), getattr(leg, name)[:B], err_msg=name)
