@@ -383,9 +383,13 @@ def _run_block_any(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABO
     if _vector_block(b0, b1, P, FR, MECH, C, AI):
         _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT, REC, rec_every,
                           rec_offset)
-    else:
+    elif _plain_block(b0, b1, P, FR, MECH):
         _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC,
                    rec_every, rec_offset)
+    else:   # one leg at a time: its state stays in the cache over the ticks
+        for b in range(b0, b1):
+            _run_block(b, b + 1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
+                       REC, rec_every, rec_offset)
 
 
 @njit(cache=True, inline="always")
@@ -463,8 +467,8 @@ def _mechanics_plain(dt, FB, IB, nb, P, FR):
         FB[_at(R_Q + 4, i)] = (t + dt) if go else t
 
 
-@njit(cache=True)
-def _mechanics_leg(b, k, dt, X, AI, FR, MECH, DRV, ABORT, P, tau, tm, inv_v_stribeck, inv_v_smooth):
+@njit(cache=True, inline="always")
+def _mechanics_leg(b, k, dt, X, AI, FR, MECH, DRV, ABORT, Pb, tau, tm, inv_v_stribeck, inv_v_smooth):
     """One tick of leg ``b``'s mechanics, any plant (the belt, cogging and friction effects,
     independent inertias), ``tau`` the motor torques on the joint side; X updated in place.
     True when the accelerations were not finite (the leg is stopped: ABORT, axes IDLE)."""
@@ -476,15 +480,16 @@ def _mechanics_leg(b, k, dt, X, AI, FR, MECH, DRV, ABORT, P, tau, tm, inv_v_stri
     if MECH[b] == 0:
         s_q1, c_q1 = _sincos(q1)
         s_q2, c_q2 = _sincos(q2)
-        r5 = _fivebar_reduced(c_q1, s_q1, c_q2, s_q2, dq1, dq2, P[b])
+        r5 = _fivebar_reduced(c_q1, s_q1, c_q2, s_q2, dq1, dq2, Pb)
         d11, d12, d22, b1, b2 = r5[0], r5[1], r5[2], r5[3], r5[4]
     else:
         d11, d12, d22, b1, b2 = FR[b, 11], 0.0, FR[b, 12], 0.0, 0.0
-    f1 = FR[b, 0] * dq1 + (FR[b, 2] + _stribeck(FR[b, 4], dq1 * inv_v_stribeck)) * _tanh(dq1 * inv_v_smooth)
-    f2 = FR[b, 1] * dq2 + (FR[b, 3] + _stribeck(FR[b, 5], dq2 * inv_v_stribeck)) * _tanh(dq2 * inv_v_smooth)
     if FR[b, F_FRIC_EXT] > 0.0:         # asymmetric, LuGre, drifting friction (plant [friction])
         f1 = _joint_friction(b, dt, X, FR, 0, dq1)
         f2 = _joint_friction(b, dt, X, FR, 1, dq2)
+    else:
+        f1 = FR[b, 0] * dq1 + (FR[b, 2] + _stribeck(FR[b, 4], dq1 * inv_v_stribeck)) * _tanh(dq1 * inv_v_smooth)
+        f2 = FR[b, 1] * dq2 + (FR[b, 3] + _stribeck(FR[b, 5], dq2 * inv_v_stribeck)) * _tanh(dq2 * inv_v_smooth)
     t1 = tau[0] - b1 - f1
     t2 = tau[1] - b2 - f2
     if MECH[b] == 0:
@@ -944,6 +949,7 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
         IB[_at(R_DEAD, i)] = 1 if ABORT[b, 1] == ABORT_NONFINITE else 0
         RNGL[i] = RNG[b]
     plain = _plain_block(b0, b1, P, FR, MECH)
+    Pb_first = _param_row(P, b0)   # the first leg's parameters, loaded once
     P_plain = P[b0:b0 + 1]
     FR_plain = FR[b0:b0 + 1]
     next_rec = 0 if rec_every > 0 else -1   # the next tick recorded (no modulo per tick)
@@ -958,7 +964,7 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
             b = b0 + i
             # ---- record (before the tick, so row 0 is the initial state)
             if 0 <= rec_row < n_rec:
-                REC[b, rec_row, 0] = FB[_at(R_Q + 4, i)]
+                REC[b, rec_row, 0] = FB[_at(R_Q + 4, i)] if plain else X[b, 4]
                 REC[b, rec_row, 1] = AS[b, 0, S_COUNT_F]
                 REC[b, rec_row, 2] = AS[b, 1, S_COUNT_F]
                 REC[b, rec_row, 3] = AS[b, 0, S_IQ_MEAS]
@@ -981,7 +987,7 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
             ibus_sum = 0.0
             for a in range(2):
                 j = j_of_a0 if a == 0 else 1 - j_of_a0
-                q = FB[_at(R_Q + 2 * j, i)]
+                q = FB[_at(R_Q + 2 * j, i)] if plain else X[b, 2 * j]
                 if FR[b, F_BELT_K] > 0.0:       # compliant belt: the encoder is on the rotor
                     q = X[b, X_PHI1 + 2 * j]
                 turns = dirn * (q - DRV[3 + j]) * turns_per_rad
@@ -1211,18 +1217,16 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
                 if IB[_at(R_DEAD, i)] != 0:
                     continue
                 b = b0 + i
-                for n in range(5):
-                    X[b, n] = FB[_at(R_Q + n, i)]
                 tau2[0], tau2[1] = FB[_at(R_TAU, i)], FB[_at(R_TAU + 1, i)]
-                if _mechanics_leg(b, k, dt, X, AI, FR, MECH, DRV, ABORT, P, tau2, TM[i], INV_VS[i],
+                Pb = Pb_first if i == 0 else _param_row(P, b)
+                if _mechanics_leg(b, k, dt, X, AI, FR, MECH, DRV, ABORT, Pb, tau2, TM[i], INV_VS[i],
                                   INV_VSM[i]):
                     IB[_at(R_DEAD, i)] = 1
-                for n in range(5):
-                    FB[_at(R_Q + n, i)] = X[b, n]
     for i in range(nb):
         b = b0 + i
-        for n in range(5):
-            X[b, n] = FB[_at(R_Q + n, i)]
+        if plain:
+            for n in range(5):
+                X[b, n] = FB[_at(R_Q + n, i)]
         RNG[b] = RNGL[i]
 
 
