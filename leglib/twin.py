@@ -545,6 +545,11 @@ N_V = V_OSC + N_OSC
 (K_OFF, K_KP, K_KI, K_VL, K_VTOL, K_IPOS, K_IVEL, K_ITQ, K_KT, K_VG, K_CLIM, K_AE, K_PG, K_VIG,
  K_VIL, K_ALPHA, K_INVKT) = range(17)
 N_K = 17
+# the configuration rows copied as they are: (K_ row, C_ slot)
+K_FROM_C = ((K_OFF, C_COUNT_OFFSET), (K_VL, C_VEL_LIMIT), (K_VTOL, C_VEL_TOL), (K_IPOS, C_INPUT_POS),
+            (K_IVEL, C_INPUT_VEL), (K_ITQ, C_INPUT_TORQUE), (K_KT, C_KT), (K_VG, C_VEL_GAIN),
+            (K_CLIM, C_CURRENT_LIM), (K_AE, C_ABORT_ERROR), (K_PG, C_POS_GAIN), (K_VIG, C_VEL_INT_GAIN),
+            (K_VIL, C_VEL_INT_LIMIT))
 (G_BRAKE_ON, G_BRAKE_R, G_MAX_REGEN, G_DCP, G_DCN, G_VBUS, G_STYLE, G_INV_VBUS, G_INV_BRAKE_R, G_IBUS,
  G_BRAKE_I, G_IBUS_AXES) = range(12)
 N_G = 12
@@ -830,22 +835,11 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT,
                 FB[_at(rv + n, i)] = AS[b, a, f_slots[n]]
             for n in range(N_W):
                 IB[_at(rw + n, i)] = AI[b, a, w_slots[n]]
+            for n in range(len(K_FROM_C)):
+                FB[_at(rk + K_FROM_C[n][0], i)] = C[b, a, K_FROM_C[n][1]]
             kp = 2.0 * C[b, a, C_ENCODER_BW]
-            FB[_at(rk + K_OFF, i)] = C[b, a, C_COUNT_OFFSET]
             FB[_at(rk + K_KP, i)] = kp
             FB[_at(rk + K_KI, i)] = 0.25 * kp * kp
-            FB[_at(rk + K_VL, i)] = C[b, a, C_VEL_LIMIT]
-            FB[_at(rk + K_VTOL, i)] = C[b, a, C_VEL_TOL]
-            FB[_at(rk + K_IPOS, i)] = C[b, a, C_INPUT_POS]
-            FB[_at(rk + K_IVEL, i)] = C[b, a, C_INPUT_VEL]
-            FB[_at(rk + K_ITQ, i)] = C[b, a, C_INPUT_TORQUE]
-            FB[_at(rk + K_KT, i)] = C[b, a, C_KT]
-            FB[_at(rk + K_VG, i)] = C[b, a, C_VEL_GAIN]
-            FB[_at(rk + K_CLIM, i)] = C[b, a, C_CURRENT_LIM]
-            FB[_at(rk + K_AE, i)] = C[b, a, C_ABORT_ERROR]
-            FB[_at(rk + K_PG, i)] = C[b, a, C_POS_GAIN]
-            FB[_at(rk + K_VIG, i)] = C[b, a, C_VEL_INT_GAIN]
-            FB[_at(rk + K_VIL, i)] = C[b, a, C_VEL_INT_LIMIT]
             FB[_at(rk + K_ALPHA, i)] = 1.0 - math.exp(-C[b, a, C_CURRENT_BW] * dt)
             FB[_at(rk + K_INVKT, i)] = 1.0 / C[b, a, C_KT]
         FB[_at(R_G + G_BRAKE_ON, i)] = C[b, 0, C_BRAKE_ON]
