@@ -380,16 +380,17 @@ def _run_block_any(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABO
                    rec_every, rec_offset):
     """Legs b0..b1-1: vectorized (:func:`_run_block_vector`) when they allow, else
     :func:`_run_block`; the same numbers either way."""
-    if _vector_block(b0, b1, P, FR, MECH, C, AI):
+    plain = _plain_block(b0, b1, P, FR, MECH)
+    if plain and _vector_block(b0, b1, FR, C, AI):
         _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT, REC, rec_every,
                           rec_offset)
-    elif _plain_block(b0, b1, P, FR, MECH):
+    elif plain:
         _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC,
-                   rec_every, rec_offset)
+                   rec_every, rec_offset, True)
     else:   # one leg at a time: its state stays in the cache over the ticks
         for b in range(b0, b1):
             _run_block(b, b + 1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
-                       REC, rec_every, rec_offset)
+                       REC, rec_every, rec_offset, False)
 
 
 @njit(cache=True, inline="always")
@@ -578,12 +579,10 @@ def _at(row, i):
 
 
 @njit(cache=True)
-def _vector_block(b0, b1, P, FR, MECH, C, AI):
-    """Whether legs b0..b1-1 can take :func:`_run_block_vector`: a plain plant (see
-    :func:`_plain_block`) without an encoder reading error, and every axis in position
-    control or IDLE with its inputs passed through and no watchdog."""
-    if not _plain_block(b0, b1, P, FR, MECH):
-        return False
+def _vector_block(b0, b1, FR, C, AI):
+    """Whether legs b0..b1-1 of a plain block (see :func:`_plain_block`) can take
+    :func:`_run_block_vector`: no encoder reading error, and every axis in position control
+    or IDLE with its inputs passed through and no watchdog."""
     for b in range(b0, b1):
         if FR[b, F_ENC_ON] > 0.0:
             return False
@@ -903,11 +902,11 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT,
 
 @njit(cache=True)
 def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC,
-               rec_every, rec_offset):
+               rec_every, rec_offset, plain):
     """Legs b0..b1-1 of :func:`_run`, tick by tick: each tick the controller of every leg
-    (the firmware's loop), then the block's mechanics (one loop over the legs that
-    vectorizes when they share a plain plant, else leg by leg). A leg's numbers do not
-    depend on the block it is in."""
+    (the firmware's loop), then the block's mechanics: one loop over the legs that
+    vectorizes when ``plain`` (they share a plain plant, :func:`_plain_block`), else leg by
+    leg. A leg's numbers do not depend on the block it is in."""
     nb = b1 - b0
     N = DRV[0]
     cpr = DRV[1]
@@ -942,7 +941,6 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
             FB[_at(R_Q + n, i)] = X[b, n]
         IB[_at(R_DEAD, i)] = 1 if ABORT[b, 1] == ABORT_NONFINITE else 0
         RNGL[i] = RNG[b]
-    plain = _plain_block(b0, b1, P, FR, MECH)
     Pb_first = _param_row(P, b0)   # the first leg's parameters, loaded once
     P_plain = P[b0:b0 + 1]
     FR_plain = FR[b0:b0 + 1]

@@ -299,8 +299,8 @@ def test_a_vectorized_block_gives_the_leg_by_leg_numbers():
     FR[B, 0] *= 1.5   # one more leg, of another plant: its block is not plain
     MECH = np.zeros(B + 1, np.int64)
     mixed = start.take(list(range(B)) + [0])
-    assert T._vector_block(0, B, P, FR, MECH, start.C, start.AI)
-    assert not T._vector_block(0, B + 1, P, FR, MECH, mixed.C, mixed.AI)
+    assert T._plain_block(0, B, P, FR, MECH) and T._vector_block(0, B, FR, start.C, start.AI)
+    assert not T._plain_block(0, B + 1, P, FR, MECH)
     vec, rec_vec = run(start.copy(), P[:B], FR[:B], B)
     leg, rec_leg = run(mixed, P, FR, B + 1)
     # the events happened
