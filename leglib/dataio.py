@@ -37,6 +37,18 @@ batch being written may be missing, empty or cut: the reader refuses those (samp
 and SHA-256 against the sidecar, or a sidecar without its CSV) and a resumed sweep sets
 them aside and measures their points again.
 
+Batch files
+-----------
+A twin sweep measures hundreds of points in one go; writing each as two files costs more
+than simulating it (creating a file takes 30-300 us here). It writes them as one batch:
+``YYYYmmdd_HHMMSS_lg<12 hex>_batch.csv``, the measurements' rows one after the other
+(each starting again at its own time zero), and a sidecar ``..._batch.json`` (format 3)
+holding the fields they share, the total sample count and SHA-256, and ``points``: per
+measurement (in file order) its gains, sample count, ``completed`` and ``abort_reason``.
+The commit protocol is a measurement's; a batch is committed, read and set aside as one
+unit (:func:`read_batch`, :func:`read_file`), and :func:`read_measurements` reads both
+kinds. Measurements of the real leg are written one file each, as they are taken.
+
 A sidecar-less file with a thesis name is a thesis file; its angles are relative to the
 start, so its first row must lie within :data:`RELATIVE_START_DEG` of zero -- an absolute
 angle there (e.g. 267 deg) is the orphan CSV of a pre-format-2 leglib write, and is
@@ -98,6 +110,11 @@ _ROW_RE = re.compile(rf"^[ \t]*({_NUM})[ \t]*,[ \t]*({_NUM})[ \t]*,[ \t]*({_NUM}
 NAME_RE = re.compile(r"^(?P<stamp>[0-9]{8}_[0-9]{6})(?:_(?P<gains>(?!lg)[^_]+))?"
                      r"(?:_(?P<uid>lg[0-9a-f]{12}))?_positions\.csv$", re.ASCII)
 _UID_RE = re.compile(r"_lg[0-9a-f]{12}_positions\.json$", re.ASCII)
+BATCH_FORMAT = 3
+BATCH_RE = re.compile(r"^(?P<stamp>[0-9]{8}_[0-9]{6})_(?P<uid>lg[0-9a-f]{12})_batch\.csv$", re.ASCII)
+_BATCH_SIDE_RE = re.compile(r"^[0-9]{8}_[0-9]{6}_lg[0-9a-f]{12}_batch\.json$", re.ASCII)
+MAX_BATCH_CSV_BYTES = 1 << 30     # a batch holds many measurements (the thesis grid: 9 MB)
+MAX_BATCH_SIDECAR_BYTES = 64 << 20
 
 
 class MeasurementError(ValueError):
@@ -299,13 +316,14 @@ def write_bytes_atomic(path: str | Path, data: bytes, overwrite: bool = False) -
     return path
 
 
-def _csv_bytes(data: np.ndarray) -> bytes:
-    """Rows of ``data`` as ``"%.6f,%.6f,...\\n"`` ASCII: compiled, or (for the values it
-    cannot format exactly: ties, huge, non-finite) one Python format of the whole table."""
+def _csv_bytes(data: np.ndarray):
+    """Rows of ``data`` as ``"%.6f,%.6f,...\\n"`` ASCII (bytes, or a uint8 array of them):
+    compiled, or (for the values it cannot format exactly: ties, huge, non-finite) one
+    Python format of the whole table."""
     from . import csvcodec  # numba: imported on first use
 
     data = np.atleast_2d(np.asarray(data, dtype=float))
-    body = csvcodec.format_fixed6(data)
+    body = csvcodec.format_fixed6_array(data)
     if body is None:
         row = ",".join(["%.6f"] * data.shape[1]) + "\n"
         body = ((row * data.shape[0]) % tuple(data.ravel().tolist())).encode("ascii")
@@ -359,13 +377,100 @@ def write_measurement(out_dir: str | Path, t, angle1_deg, angle2_deg, meta: dict
     raise FileExistsError(f"{out_dir}: could not find a free measurement name")
 
 
+def batch_filename(when: _dt.datetime | None = None, uid: str | None = None) -> str:
+    """A batch file's name: ``<stamp>_lg<uid>_batch.csv``."""
+    when = when or _dt.datetime.now()
+    return f"{when.strftime('%Y%m%d_%H%M%S')}_lg{uid or secrets.token_hex(6)}_batch.csv"
+
+
+def is_batch_name(path: str | Path) -> bool:
+    """True for a batch file's name (several measurements in one file, see the module notes)."""
+    return bool(BATCH_RE.match(Path(path).name))
+
+
+def write_batch(out_dir: str | Path, series, meta: dict, when: _dt.datetime | None = None) -> Path:
+    """Write many measurements as one batch file (sidecar, then the CSV as the commit);
+    returns the CSV path.
+
+    Parameters
+    ----------
+    out_dir : directory (created if missing)
+    series : sequence of ``(t, angle1_deg, angle2_deg, gains, point_meta)``, one per
+        measurement: as :func:`write_measurement`'s ``t``, angles and gains (required
+        here), and the sidecar fields of that measurement alone (``completed`` a bool,
+        ``abort_reason``)
+    meta : the sidecar fields all of them share (device, experiment)
+    when : time stamp of the name (default now)
+
+    One file for a whole twin sweep: creating files is what costs (see the module notes).
+    While it is written, the batch's name is claimed (:func:`claim`), so a resumed sweep
+    does not take a live writer's unfinished batch for a leftover.
+    """
+    out_dir = Path(out_dir)
+    if not out_dir.is_dir():
+        out_dir.mkdir(parents=True, exist_ok=True)
+    series = list(series)
+    if not series:
+        raise ValueError("write_batch: no measurements to write")
+    columns, points = [], []
+    for k, item in enumerate(series):
+        where = f"write_batch: measurement {k}"
+        if len(item) != 5:
+            raise ValueError(f"{where}: expected (t, angle1_deg, angle2_deg, gains, point_meta), "
+                             f"got {len(item)} items")
+        t, a1, a2, gains, pmeta = item
+        t, a1, a2 = (np.asarray(v, dtype=float) for v in (t, a1, a2))
+        if not (t.shape == a1.shape == a2.shape) or t.ndim != 1 or t.size < 2:
+            raise ValueError(f"{where}: t, angle1, angle2 must be 1-D of equal length >= 2, "
+                             f"got {t.shape}, {a1.shape}, {a2.shape}")
+        g = [float(x) for x in gains] if gains is not None and not isinstance(gains, (str, bytes)) else []
+        if len(g) != 3 or not all(math.isfinite(x) for x in g):
+            raise ValueError(f"{where}: gains must be three finite numbers, got {gains!r}")
+        if not isinstance(pmeta, dict):
+            raise ValueError(f"{where}: point_meta must be a dict, got {type(pmeta).__name__}")
+        if "completed" in pmeta and not isinstance(pmeta["completed"], (bool, np.bool_)):
+            raise ValueError(f"{where}: point_meta['completed'] must be a bool, got {pmeta['completed']!r}")
+        points.append({**pmeta, "gains": g, "samples": int(t.size)})
+        columns.append((t, a1, a2))
+    data = np.empty((sum(p["samples"] for p in points), 3))
+    for j in range(3):
+        np.concatenate([c[j] for c in columns], out=data[:, j])
+    good = np.isfinite(data).all(axis=1) & (np.abs(data[:, 1:]) <= ANGLE_LIMIT_DEG).all(axis=1)
+    if not good.all():
+        k = int(np.searchsorted(np.cumsum([p["samples"] for p in points]), np.argmin(good), side="right"))
+        raise ValueError(f"write_batch: measurement {k}: values must be finite and angles within "
+                         f"+-{ANGLE_LIMIT_DEG} deg")
+    body = _csv_bytes(data)
+    sidecar = {**provenance(), **meta, "format": BATCH_FORMAT, "columns": COLUMNS, "angles": "absolute",
+               "points": points, "samples": int(data.shape[0]),
+               "csv_sha256": hashlib.sha256(body).hexdigest()}
+    text = _json_text(sidecar, one_per_line=("points",))
+    for _ in range(100):
+        path = out_dir / batch_filename(when)
+        mine = claim(out_dir, BATCH_RE.match(path.name).group("uid"))
+        if mine is None:
+            continue
+        try:
+            try:
+                write_bytes_atomic(sidecar_path(path), text)
+            except FileExistsError:
+                continue  # the random part collided: draw another
+            write_bytes_atomic(path, body)  # the commit
+            return path
+        finally:
+            mine.release()
+    raise FileExistsError(f"{out_dir}: could not find a free batch name")
+
+
 _LAYOUTS: dict = {}  # compact JSON of a nested value -> its indented layout (see _json_text)
 _json_string = json.encoder.encode_basestring_ascii  # what json writes for a str (ensure_ascii)
 _JSON_SCALARS = (str, int, float, type(None))  # bool is an int
 
 
-def _json_text(obj) -> bytes:
-    """``json.dumps(obj, indent=2, sort_keys=True, default=_json_default)``, the same text.
+def _json_text(obj, one_per_line=()) -> bytes:
+    """``json.dumps(obj, indent=2, sort_keys=True, default=_json_default)``, the same text;
+    except that the lists under the keys ``one_per_line`` are written one compact element
+    a line (a batch's measurements).
 
     json lays out indented text in Python (about 0.2 ms for a sidecar). Here the top level
     is laid out directly and each nested value's layout is remembered by its compact JSON
@@ -374,11 +479,15 @@ def _json_text(obj) -> bytes:
     """
     if not (isinstance(obj, dict) and obj and all(type(k) is str for k in obj)
             and all(isinstance(v, _JSON_SCALARS + (dict, list, tuple)) for v in obj.values())):
+        if one_per_line:
+            raise TypeError("_json_text: one_per_line needs a dict of JSON values")
         return json.dumps(obj, indent=2, sort_keys=True, default=_json_default).encode()
     lines = []
     for k in sorted(obj):
         v = obj[k]
-        if isinstance(v, (dict, list, tuple)) and v:
+        if k in one_per_line and isinstance(v, (list, tuple)) and v:
+            text = "[\n    " + ",\n    ".join(_COMPACT.encode(x) for x in v) + "\n  ]"
+        elif isinstance(v, (dict, list, tuple)) and v:
             compact = _COMPACT.encode(v)
             text = _LAYOUTS.get(compact)
             if text is None:
@@ -555,47 +664,62 @@ def _is_number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def _check_sidecar(side: Path, meta, csv: Path, raw: bytes, n: int, name_gains, exact_name: bool) -> tuple | None:
-    """Check a sidecar's types and its agreement with the CSV and its name; returns its gains."""
+def _bad_field(side: Path, meta: dict, fieldname: str, expected: str, prefix: str = "") -> MeasurementError:
+    return MeasurementError(f"{side}: field {prefix}{fieldname!r} must be {expected}, got "
+                            f"{_excerpt(json.dumps(meta[fieldname]))}")
+
+
+def _check_fields(side: Path, meta, prefix: str = "") -> None:
+    """The types of a sidecar's optional fields (of a measurement, or of one measurement
+    of a batch: ``prefix`` names where in the sidecar)."""
     if not isinstance(meta, dict):
-        raise MeasurementError(f"{side}: sidecar must be a JSON object, got {type(meta).__name__}")
-
-    def bad(fieldname, expected):
-        return MeasurementError(f"{side}: field {fieldname!r} must be {expected}, got "
-                                f"{_excerpt(json.dumps(meta[fieldname]))}")
-
-    fmt = meta.get("format", 1)
-    if not isinstance(fmt, int) or isinstance(fmt, bool) or not 1 <= fmt <= FORMAT:
-        raise bad("format", f"an integer 1..{FORMAT}")
+        raise MeasurementError(f"{side}: {prefix or 'sidecar'} must be a JSON object, got {type(meta).__name__}")
     if "columns" in meta and meta["columns"] != COLUMNS:
-        raise bad("columns", repr(COLUMNS))
+        raise _bad_field(side, meta, "columns", repr(COLUMNS), prefix)
     if "angles" in meta and meta["angles"] not in ("absolute", "relative"):
-        raise bad("angles", "'absolute' or 'relative'")
+        raise _bad_field(side, meta, "angles", "'absolute' or 'relative'", prefix)
     if "completed" in meta and not isinstance(meta["completed"], bool):
-        raise bad("completed", "true or false (a JSON boolean)")
+        raise _bad_field(side, meta, "completed", "true or false (a JSON boolean)", prefix)
     for key in ("step_turns", "sample_rate_hz", "period_s", "rate_hz"):
         if key in meta and meta[key] is not None and not _is_number(meta[key]):
-            raise bad(key, "a finite number")
+            raise _bad_field(side, meta, key, "a finite number", prefix)
     if "abort_reason" in meta and not (meta["abort_reason"] is None or isinstance(meta["abort_reason"], str)):
-        raise bad("abort_reason", "a string or null")
+        raise _bad_field(side, meta, "abort_reason", "a string or null", prefix)
+
+
+def _check_contents(side: Path, meta: dict, csv: Path, raw: bytes, n: int, required: bool) -> None:
+    """The sidecar's sample count and SHA-256 against the CSV's ``n`` rows and bytes."""
     if "samples" in meta:
         s = meta["samples"]
         if not isinstance(s, int) or isinstance(s, bool):
-            raise bad("samples", "an integer")
+            raise _bad_field(side, meta, "samples", "an integer")
         if s != n:
             raise MeasurementError(f"{csv}: {n} samples, but its sidecar {side.name} says {s} "
                                    f"(a cut or extended file)")
-    elif fmt >= 2:
+    elif required:
         raise MeasurementError(f"{side}: field 'samples' missing")
     if "csv_sha256" in meta:
         h = meta["csv_sha256"]
         if not isinstance(h, str) or not re.fullmatch(r"[0-9a-f]{64}", h):
-            raise bad("csv_sha256", "64 hexadecimal digits")
+            raise _bad_field(side, meta, "csv_sha256", "64 hexadecimal digits")
         if hashlib.sha256(raw).hexdigest() != h:
             raise MeasurementError(f"{csv}: contents differ from those committed with its sidecar "
                                    f"{side.name} (SHA-256 mismatch): the file was changed after writing")
-    elif fmt >= 2:
+    elif required:
         raise MeasurementError(f"{side}: field 'csv_sha256' missing")
+
+
+def _check_sidecar(side: Path, meta, csv: Path, raw: bytes, n: int, name_gains, exact_name: bool) -> tuple | None:
+    """Check a sidecar's types and its agreement with the CSV and its name; returns its gains."""
+    _check_fields(side, meta)
+
+    def bad(fieldname, expected):
+        return _bad_field(side, meta, fieldname, expected)
+
+    fmt = meta.get("format", 1)
+    if not isinstance(fmt, int) or isinstance(fmt, bool) or not 1 <= fmt <= FORMAT:
+        raise bad("format", f"an integer 1..{FORMAT}")
+    _check_contents(side, meta, csv, raw, n, required=fmt >= 2)
     gains = None
     if meta.get("gains") is not None:
         g = meta["gains"]
@@ -627,6 +751,12 @@ class Measurement:
     angle2: np.ndarray
     gains: tuple | None
     meta: dict = field(default_factory=dict)
+    point: int | None = None   # its place in a batch file (0-based); None for a file of its own
+
+    @property
+    def where(self) -> str:
+        """The file, and for a batch which of its measurements: for messages."""
+        return str(self.path) if self.point is None else f"{self.path} (measurement {self.point + 1} of the batch)"
 
     @property
     def absolute(self) -> bool:
@@ -650,6 +780,9 @@ def read_measurement(path: str | Path) -> Measurement:
     angles do not start at zero.
     """
     path = Path(path)
+    if is_batch_name(path):
+        raise MeasurementError(f"{path}: a batch file holds several measurements: read it with "
+                               f"dataio.read_file (or read_measurements)")
     _, name_gains, uid = _parse_name(path)
     raw = _read_regular(path, MAX_CSV_BYTES, "measurement file")
     data = _parse_csv(path, raw, "measurement file", 3, "(time, angle1, angle2)", increasing_first=True,
@@ -682,6 +815,89 @@ def read_measurement(path: str | Path) -> Measurement:
                        gains=gains, meta=meta)
 
 
+def _row_line(path: Path, raw: bytes, row: int) -> int:
+    """The line number of data row ``row`` (0-based; lines of whitespace hold no row)."""
+    seen = -1
+    for lineno, line in enumerate(_decode(path, raw, "batch file").split("\n"), start=1):
+        if line.strip():
+            seen += 1
+            if seen == row:
+                return lineno
+    return row + 1
+
+
+def read_batch(path: str | Path) -> list[Measurement]:
+    """Read and validate a batch file and its sidecar: its measurements, in order.
+
+    Checks as :func:`read_measurement` does (regular UTF-8 file of bounded size, strict rows,
+    angles within the limit, the sidecar's types, total sample count and SHA-256), and
+    for every measurement of the batch its gains (three finite numbers), its sample count
+    (at least two; together they make up the file) and increasing time. Errors are
+    MeasurementError naming file, line and field (``points[k]`` is measurement k + 1).
+    """
+    path = Path(path)
+    if not is_batch_name(path):
+        raise MeasurementError(f"{path}: not a batch file name (expected YYYYmmdd_HHMMSS_lg<12 hex>_batch.csv)")
+    raw = _read_regular(path, MAX_BATCH_CSV_BYTES, "batch file")
+    data = _parse_csv(path, raw, "batch file", 3, "(time, angle1, angle2)", angle_columns=(1, 2))
+    side = sidecar_path(path)
+    side_raw = _read_regular(side, MAX_BATCH_SIDECAR_BYTES, "sidecar", missing_ok=True)
+    if side_raw is None:
+        raise MeasurementError(f"{path}: sidecar {side.name} missing: a batch without its sidecar is "
+                               f"incomplete or damaged (re-measure it)")
+    try:
+        meta = json.loads(_decode(side, side_raw, "sidecar"))
+    except json.JSONDecodeError as exc:
+        raise MeasurementError(f"{side}:{exc.lineno}: sidecar is not valid JSON: {exc.msg}") from None
+    except RecursionError:
+        raise MeasurementError(f"{side}: sidecar is nested too deeply") from None
+    _check_fields(side, meta)
+    if meta.get("format") != BATCH_FORMAT:
+        raise MeasurementError(f"{side}: field 'format' must be {BATCH_FORMAT} (a batch), got "
+                               f"{_excerpt(json.dumps(meta.get('format')))}")
+    _check_contents(side, meta, path, raw, len(data), required=True)
+    points = meta.get("points")
+    if not isinstance(points, list) or not points:
+        raise MeasurementError(f"{side}: field 'points' must be a non-empty list of objects, one per "
+                               f"measurement, got {_excerpt(json.dumps(points))}")
+    for k, pm in enumerate(points):
+        where = f"points[{k}]."
+        _check_fields(side, pm, where)
+        g = pm.get("gains")
+        if not (isinstance(g, list) and len(g) == 3 and all(_is_number(x) for x in g)):
+            raise MeasurementError(f"{side}: field {where}'gains' must be a list of three finite numbers, "
+                                   f"got {_excerpt(json.dumps(g))}")
+        n = pm.get("samples")
+        if not isinstance(n, int) or isinstance(n, bool) or n < 2:
+            raise MeasurementError(f"{side}: field {where}'samples' must be an integer >= 2, "
+                                   f"got {_excerpt(json.dumps(n))}")
+    total = sum(pm["samples"] for pm in points)
+    if total != len(data):
+        raise MeasurementError(f"{side}: its measurements' 'samples' add up to {total}, but {path.name} "
+                               f"has {len(data)} rows")
+    common = {k: v for k, v in meta.items() if k not in ("points", "samples", "csv_sha256")}
+    out, start = [], 0
+    for k, pm in enumerate(points):
+        n = pm["samples"]
+        t = data[start:start + n, 0]
+        d = np.diff(t)
+        if not np.all(d > 0):
+            row = start + 1 + int(np.argmin(d > 0))
+            line = _row_line(path, raw, row)
+            raise MeasurementError(f"{path}:{line}: time {data[row, 0]} does not increase (previous "
+                                   f"{data[row - 1, 0]}) within measurement {k + 1} of the batch")
+        out.append(Measurement(path=path, t=t, angle1=data[start:start + n, 1], angle2=data[start:start + n, 2],
+                               gains=tuple(float(x) for x in pm["gains"]), meta={**common, **pm}, point=k))
+        start += n
+    return out
+
+
+def read_file(path: str | Path) -> list[Measurement]:
+    """The measurements of one file: a batch's (:func:`read_batch`) or the one of a
+    measurement file (:func:`read_measurement`)."""
+    return read_batch(path) if is_batch_name(path) else [read_measurement(path)]
+
+
 def _directory(directory: str | Path) -> Path:
     if not isinstance(directory, (str, os.PathLike)):
         raise TypeError(f"expected a directory path, got {type(directory).__name__}")
@@ -694,13 +910,15 @@ def _directory(directory: str | Path) -> Path:
 
 
 def list_measurements(directory: str | Path) -> list[Path]:
-    """Measurement CSVs (``*_positions.csv``, not hidden) in ``directory``, sorted by name.
+    """Measurement files in ``directory``: CSVs of one measurement (``*_positions.csv``)
+    and batch files (``*_batch.csv``), not hidden, sorted by name.
 
     MeasurementError if ``directory`` does not exist or is not a directory. Uncommitted
     writes (sidecars without a CSV, temporary files) are not listed (:func:`find_uncommitted`).
     """
     d = _directory(directory)
-    return sorted(p for p in d.glob("*_positions.csv") if not p.name.startswith("."))
+    return sorted(p for pattern in ("*_positions.csv", "*_batch.csv") for p in d.glob(pattern)
+                  if not p.name.startswith("."))
 
 
 @dataclass
@@ -725,7 +943,7 @@ def read_measurements(paths_or_dir, strict: bool = True) -> DirectoryRead:
     out, problems = [], []
     for p in paths:
         try:
-            out.append(read_measurement(p))
+            out.extend(read_file(p))
         except MeasurementError as exc:
             if strict:
                 raise
@@ -742,10 +960,20 @@ def find_uncommitted(directory: str | Path) -> list[Path]:
     appeared and hidden temporary files. (A concurrent writer's in-flight files look the
     same: hold the point's :func:`claim` before removing them.)"""
     d = _directory(directory)
-    found = [p for p in d.glob("*_positions.json")
-             if _UID_RE.search(p.name) and not os.path.lexists(p.with_suffix(".csv"))]
-    found += [p for p in d.glob(".*.tmp") if "_positions." in p.name]
+    found = [p for pattern, name_re in (("*_positions.json", _UID_RE), ("*_batch.json", _BATCH_SIDE_RE))
+             for p in d.glob(pattern) if name_re.search(p.name) and not os.path.lexists(p.with_suffix(".csv"))]
+    found += [p for p in d.glob(".*.tmp") if "_positions." in p.name or "_batch." in p.name]
     return sorted(found)
+
+
+def uncommitted_claim_key(path: Path):
+    """What a leftover file's writer held claimed while writing it (:func:`claim`): the
+    gains of a measurement, the ``lg`` part of a batch; None when the name tells neither."""
+    name = path.name
+    if name.startswith(".") and name.endswith(".tmp"):
+        name = name[1:].rsplit(".", 2)[0]
+    m = BATCH_RE.match(name.replace("_batch.json", "_batch.csv"))
+    return m.group("uid") if m else gains_of_uncommitted(path)
 
 
 def gains_of_uncommitted(path: Path) -> tuple | None:
@@ -821,9 +1049,10 @@ def _claim_ofd(directory: str | Path, digest: bytes, wait: bool) -> Claim | None
 
 
 def claim(directory: str | Path, gains, wait: bool = False) -> Claim | None:
-    """Claim the point ``gains`` in ``directory``; None if another process holds it
-    (``wait=True`` blocks until it is released)."""
-    digest = hashlib.sha1(exact_gains_key(gains).encode()).digest()
+    """Claim the point ``gains`` in ``directory`` (or, given a string, that name: a batch
+    being written); None if another process holds it (``wait=True`` blocks until it is
+    released)."""
+    digest = hashlib.sha1((gains if isinstance(gains, str) else exact_gains_key(gains)).encode()).digest()
     if _OFD[0] is not None and sys.platform == "linux":
         return _claim_ofd(directory, digest, wait)
     locks = os.path.join(directory, ".claims")
@@ -848,9 +1077,18 @@ def claim(directory: str | Path, gains, wait: bool = False) -> Claim | None:
 
 
 def committed_gains(directory: str | Path) -> set:
-    """Exact gains of every committed format-2 measurement (from names only: fast)."""
+    """Exact gains of every committed format-2 measurement (from names only: fast) and of
+    every measurement of a committed batch (from its sidecar; an unreadable one counts
+    none: a resumed sweep sets it aside)."""
     out = set()
     for p in list_measurements(directory):
+        if is_batch_name(p):
+            try:
+                meta = json.loads(_read_regular(sidecar_path(p), MAX_BATCH_SIDECAR_BYTES, "sidecar"))
+                out.update([tuple(float(x) for x in pm["gains"]) for pm in meta["points"]])
+            except (MeasurementError, ValueError, TypeError, KeyError):
+                pass
+            continue
         m = NAME_RE.match(p.name)
         if m and m.group("uid") and m.group("gains"):
             try:

@@ -272,7 +272,8 @@ class GainMap:
     @classmethod
     def from_measurements(cls, paths_or_dir, leg="thesis", method: str = "fit", progress: bool = False,
                           strict: bool = True) -> "GainMap":
-        """From measurement files (a directory or a list of ``*_positions.csv``).
+        """From measurement files (a directory, or a list of ``*_positions.csv`` and batch
+        ``*_batch.csv`` files).
 
         ``leg`` (name or LegParams) gives the kinematics for the foot height. ``strict=False``
         skips unreadable files and warns naming them (:func:`leglib.dataio.read_measurements`).
@@ -291,12 +292,12 @@ class GainMap:
         seen = {}
         for m in measurements:
             if m.gains is None:
-                raise dataio.MeasurementError(f"{m.path}: no gains in the file name or sidecar")
+                raise dataio.MeasurementError(f"{m.where}: no gains in the file name or sidecar")
             key = tuple(np.round(np.asarray(m.gains, dtype=float), 6))
             if key in seen:
-                raise dataio.MeasurementError(f"{seen[key]} and {m.path} both hold gains {m.gains}: "
+                raise dataio.MeasurementError(f"{seen[key]} and {m.where} both hold gains {m.gains}: "
                                               f"a map cell holds one measurement; move one away")
-            seen[key] = m.path
+            seen[key] = m.where
         with tqdm(total=len(measurements), desc="identify", unit="file", disable=not progress) as bar:
             points = identify_many(StepResponse.from_measurements(measurements, leg), method)
             bar.update(len(points))

@@ -741,6 +741,9 @@ def _check_gains(cfg: OdriveConfig, pos_gain, vel_gain, vel_integrator_gain):
 # Listing 7.4: step responses and sweeps
 # ---------------------------------------------------------------------------------------
 
+_STEP_FIELDS = {"experiment": "step_response"}   # in every step response's sidecar
+
+
 @dataclass
 class StepResponse:
     """A position step response of the leg.
@@ -763,7 +766,7 @@ class StepResponse:
 
     def write(self, out_dir, when=None) -> Path:
         """Write as a measurement file (CSV + sidecar) in ``out_dir``."""
-        meta = {"experiment": "step_response", "step_turns": self.step, "completed": self.completed,
+        meta = {**_STEP_FIELDS, "step_turns": self.step, "completed": self.completed,
                 "abort_reason": self.abort_reason, **self.meta}
         return dataio.write_measurement(out_dir, self.t, np.degrees(self.q1), np.degrees(self.q2),
                                         meta, gains=self.gains, when=when)
@@ -846,28 +849,44 @@ def _abort_reason_of(code: int) -> str | None:
             T.ABORT_OSCILLATION: "oscillation not decaying (growing or sustained)"}[int(code)]
 
 
-def _responses_from_batch(dev: Device, gains, out: dict, step: float) -> list[StepResponse]:
+def _batch_points(dev: Device, gains, out: dict):
+    """A twin batch's points: joint angles Q1, Q2 (B, samples) [rad] of all at once
+    (elementwise: the same numbers as one by one), times from zero, the fields every
+    point's sidecar shares, and per point (gains, samples kept, completed, abort reason)."""
     ax = dev.axes
     a1, a2 = ax.axis_of_joint
-    # joint angles and foot heights of all points at once (elementwise: the same numbers)
     Q1 = ax.counts_to_joint(out["counts"][:, :, a1], 0)
     Q2 = ax.counts_to_joint(out["counts"][:, :, a2], 1)
-    _, Y = foot_position(dev.leg, Q1, Q2)
-    res = []
+    t = out["t"] - out["t"][0]
+    period = out["t"][1] - out["t"][0]
+    points = []
     for i, g in enumerate(np.atleast_2d(gains)):
-        q1, q2 = Q1[i], Q2[i]
         completed = out["abort_tick"][i] < 0 and not np.any(out["axis_error"][i])
         reason = _abort_reason_of(out["abort_reason"][i])
         if reason is None and not completed:
             reason = f"axis error 0x{int(out['axis_error'][i].max()):x} (firmware fault)"
-        n = len(out["t"]) if completed else max(2, int(out["abort_tick"][i] * dev.sim.twin.dt /
-                                                     max(out["t"][1] - out["t"][0], 1e-12)) + 1)
-        n = min(n, len(out["t"]))
-        res.append(StepResponse(t=out["t"][:n] - out["t"][0], q1=q1[:n], q2=q2[:n], y=Y[i, :n],
-                                gains=tuple(float(x) for x in g), step=step, completed=bool(completed),
-                                abort_reason=reason,
-                                meta={**dev.describe(), "sample_rate_hz": 1.0 / (out["t"][1] - out["t"][0])}))
-    return res
+        n = len(t) if completed else max(2, int(out["abort_tick"][i] * dev.sim.twin.dt / max(period, 1e-12)) + 1)
+        points.append((tuple(float(x) for x in g), min(n, len(t)), bool(completed), reason))
+    return Q1, Q2, t, {**dev.describe(), "sample_rate_hz": 1.0 / period}, points
+
+
+def _responses_from_batch(dev: Device, gains, out: dict, step: float) -> list[StepResponse]:
+    Q1, Q2, t, meta, points = _batch_points(dev, gains, out)
+    _, Y = foot_position(dev.leg, Q1, Q2)   # all points at once
+    return [StepResponse(t=t[:n], q1=Q1[i, :n], q2=Q2[i, :n], y=Y[i, :n], gains=g, step=step,
+                         completed=completed, abort_reason=reason, meta=dict(meta))
+            for i, (g, n, completed, reason) in enumerate(points)]
+
+
+def _write_batch(dev: Device, gains, out: dict, step: float, out_dir: Path) -> tuple[Path, int]:
+    """A twin batch as one batch file (:func:`leglib.dataio.write_batch`), with the fields
+    :meth:`StepResponse.write` gives a point's own file; (its path, the unstable points)."""
+    Q1, Q2, t, meta, points = _batch_points(dev, gains, out)
+    D1, D2 = np.degrees(Q1), np.degrees(Q2)
+    series = [(t[:n], D1[i, :n], D2[i, :n], g, {"completed": completed, "abort_reason": reason})
+              for i, (g, n, completed, reason) in enumerate(points)]
+    path = dataio.write_batch(out_dir, series, {**_STEP_FIELDS, "step_turns": step, **meta})
+    return path, sum(not completed for _, _, completed, _ in points)
 
 
 def _step_usb(dev: Device, gains, step, duration, sample_period, vel_limit, abort_error,
@@ -1016,7 +1035,8 @@ def step_response(odrv, pos_gain: float, vel_gain: float, vel_integrator_gain: f
 
 @dataclass
 class SweepResult:
-    """What :func:`sweep` did: files written now, points skipped (already measured, here or
+    """What :func:`sweep` did: files written now (``written``; a twin batch is one file of
+    many points) and the points ``measured`` now, points skipped (already measured, here or
     meanwhile by another writer), unstable points, and files set aside into
     ``incomplete/`` (damaged or unfinished; their points were measured again)."""
 
@@ -1025,6 +1045,7 @@ class SweepResult:
     unstable: int
     out_dir: Path
     set_aside: list[Path] = field(default_factory=list)
+    measured: int = 0   # points measured now (a twin batch writes many into one file)
 
     @property
     def paths(self) -> list[Path]:
@@ -1044,7 +1065,9 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
           step: float = 0.4, duration: float = 1.5, sample_period: float = 0.002,
           chunk: int = 400) -> SweepResult:
     """Measure a step response for every (pos_gain, vel_gain, vel_integrator_gain) in
-    ``grid`` and write each as a measurement file in ``out_dir``.
+    ``grid`` and write them as measurement files in ``out_dir``: on the twin each batch of
+    points as one batch file (:func:`leglib.dataio.write_batch`), on a real leg each point
+    as its own file, as it is measured.
 
     Resumable: a point is done when a readable measurement with exactly its gains exists
     (``resume=False`` refuses a non-empty directory instead). Files that cannot be read
@@ -1061,7 +1084,7 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
     device, KeyboardInterrupt) loses no finished point; the axes go IDLE whatever happens.
     On the twin, pending points run in batches of ``chunk`` through the compiled kernel
     (the thesis grid in one: a batch costs a fixed setup, and the kernel shares a batch
-    out best when it is large), and each batch's files are flushed to disk together at its end
+    out best when it is large), and each batch's file is flushed to disk at its end
     (:func:`leglib.dataio.deferred_sync`); on USB one after the other, each file flushed
     as it is written.
     """
@@ -1097,16 +1120,17 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
     done_rounded: set = set()
     for p in existing:
         try:
-            m = dataio.read_measurement(p)
+            found = dataio.read_file(p)
         except dataio.MeasurementError:
             set_aside.append(dataio.set_aside(p))  # damaged or unfinished: measured again
             continue
-        if m.gains is not None:
-            done.add(tuple(float(x) for x in m.gains))
-            if not m.meta.get("gains"):  # a thesis file: its name holds three decimals only
-                done_rounded.add(dataio.gains_key(m.gains))
+        for m in found:
+            if m.gains is not None:
+                done.add(tuple(float(x) for x in m.gains))
+                if not m.meta.get("gains"):  # a thesis file: its name holds three decimals only
+                    done_rounded.add(dataio.gains_key(m.gains))
     for p in dataio.find_uncommitted(out_dir):
-        g = dataio.gains_of_uncommitted(p)
+        g = dataio.uncommitted_claim_key(p)
         c = dataio.claim(out_dir, g) if g is not None else None
         if c is not None:  # its writer is gone (a live writer holds the claim)
             if os.path.lexists(p):
@@ -1121,7 +1145,7 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
             pending.append(g)
     skipped = len(grid) - len(pending)
     written: list[Path] = []
-    unstable = 0
+    unstable = measured = 0
     vl = dev.config.step_vel_limit
     size = chunk if dev.backend == "virtual" else 1
     bar = tqdm(total=len(grid), initial=skipped, desc="sweep", unit="step", disable=not progress)
@@ -1159,21 +1183,24 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
                     continue
                 if block:
                     if batched:
+                        # the twin's batch: one batch file, flushed to disk once, at its end
+                        # (dataio.deferred_sync)
                         arr = np.array(block)
                         out = dev.sim.step_batch(arr, step_turns=step, duration=duration,
                                                  sample_period=sample_period, vel_limit=vl,
                                                  abort_error_turns=2 * abs(step))
-                        responses = _responses_from_batch(dev, arr, out, step)
+                        with dataio.deferred_sync():
+                            path, bad = _write_batch(dev, arr, out, step, out_dir)
+                        written.append(path)
+                        unstable += bad
                     else:
-                        responses = [step_response(dev, *block[0], step=step, duration=duration,
-                                                   sample_period=sample_period)]
-                    # the twin's batch is flushed to disk once, at its end (dataio.deferred_sync);
-                    # a real leg's measurement file by file
-                    with dataio.deferred_sync() if batched else contextlib.nullcontext():
-                        for resp in responses:
-                            written.append(resp.write(out_dir))
-                            unstable += not resp.completed
-                            bar.update(1)
+                        # a real leg's measurement: its own file, flushed as it is written
+                        resp = step_response(dev, *block[0], step=step, duration=duration,
+                                             sample_period=sample_period)
+                        written.append(resp.write(out_dir))
+                        unstable += not resp.completed
+                    measured += len(block)
+                    bar.update(len(block))
                     if _any_error(dev):   # recorded with the failed point; the sweep goes on
                         clear_errors(dev)
                 for c in claims:
@@ -1185,7 +1212,7 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
             c.release()
         bar.close()
     return SweepResult(written=written, skipped=skipped, unstable=unstable, out_dir=out_dir,
-                       set_aside=set_aside)
+                       set_aside=set_aside, measured=measured)
 
 
 # ---------------------------------------------------------------------------------------

@@ -216,10 +216,10 @@ def read_sweep(sweep_dir, leg) -> list[dict]:
     from .params import load_leg
 
     leg = load_leg(leg) if isinstance(leg, str) else leg
-    paths = dataio.list_measurements(sweep_dir)
-    if not paths:
+    measurements = dataio.read_measurements(sweep_dir).measurements
+    if not measurements:
         raise ValueError(f"no measurement files in {sweep_dir}")
-    return compare_readings(StepResponse.from_measurement(dataio.read_measurement(p), leg) for p in paths)
+    return compare_readings(StepResponse.from_measurements(measurements, leg))
 
 
 def nearest_reading(rows: list[dict], zeta: float, f_hz: float) -> dict:

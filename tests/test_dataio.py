@@ -298,3 +298,121 @@ def test_cached_result_from_another_leg_is_refused(tmp_path):
     result.write_text(json.dumps({"source": str(tmp_path / "gone_positions.csv")}))
     with pytest.warns(UserWarning, match="cannot check"):
         dataio.check_result_provenance(result, heavy)
+
+
+# -- batch files ------------------------------------------------------------------------
+
+BATCH_GAINS = [(20.0, 0.002, 0.002), (20.0, 0.0024, 0.02), (35.5, 0.1, 0.08)]
+
+
+def _batch(tmp_path, sizes=(5, 7, 4)):
+    series = []
+    for k, (g, n) in enumerate(zip(BATCH_GAINS, sizes)):
+        t = np.arange(n) * 0.002
+        series.append((t, 267 + k + t, 273 - k - t, g, {"completed": k != 2,
+                                                         "abort_reason": "diverged" if k == 2 else None}))
+    return dataio.write_batch(tmp_path, series, {"backend": "virtual", "step_turns": 0.4}, when=WHEN), series
+
+
+def _edit_sidecar(p, fn):
+    side = p.with_suffix(".json")
+    meta = json.loads(side.read_text())
+    fn(meta)
+    side.write_text(json.dumps(meta))
+
+
+def test_a_batch_round_trips_its_measurements_in_order(tmp_path):
+    p, series = _batch(tmp_path)
+    assert dataio.is_batch_name(p) and p.name.startswith("20210701_123005_lg") and p.name.endswith("_batch.csv")
+    assert dataio.list_measurements(tmp_path) == [p]
+    ms = dataio.read_file(p)
+    assert [m.gains for m in ms] == BATCH_GAINS and [m.point for m in ms] == [0, 1, 2]
+    for m, (t, a1, a2, _, pm) in zip(ms, series):
+        np.testing.assert_array_equal(m.t, t)
+        np.testing.assert_allclose(m.angle1, a1, atol=5e-7)
+        np.testing.assert_allclose(m.angle2, a2, atol=5e-7)
+        assert m.absolute and m.stable == pm["completed"] and m.meta["abort_reason"] == pm["abort_reason"]
+        assert m.meta["backend"] == "virtual" and m.meta["samples"] == len(t) and m.meta["format"] == 3
+    assert "measurement 3 of the batch" in ms[2].where
+    # one file of its own next to the batch: both kinds are read, and committed_gains has all
+    single = _write(tmp_path)
+    assert [m.path for m in dataio.read_measurements(tmp_path).measurements].count(p) == 3
+    assert dataio.committed_gains(tmp_path) == {*BATCH_GAINS, (50, 0.046, 0.001)}
+    with pytest.raises(dataio.MeasurementError, match="batch file holds several measurements.*read_file"):
+        dataio.read_measurement(p)
+    assert dataio.read_file(single)[0].point is None
+
+
+def test_a_batch_refuses_bad_measurements_naming_which(tmp_path):
+    t = np.arange(5) * 0.002
+    good = (t, 267 + t, 273 - t, (20, 0.01, 0.02), {})
+    with pytest.raises(ValueError, match="measurement 1: gains must be three finite numbers"):
+        dataio.write_batch(tmp_path, [good, (t, t, t, (20, float("nan"), 0.02), {})], {})
+    with pytest.raises(ValueError, match="measurement 0: t, angle1, angle2 must be 1-D of equal length"):
+        dataio.write_batch(tmp_path, [(t, t[:4], t, (20, 0.01, 0.02), {})], {})
+    with pytest.raises(ValueError, match="measurement 1: values must be finite and angles within"):
+        dataio.write_batch(tmp_path, [good, (t, t + 4000, t, (20, 0.01, 0.02), {})], {})
+    with pytest.raises(ValueError, match=r"measurement 0: point_meta\['completed'\] must be a bool"):
+        dataio.write_batch(tmp_path, [(t, t, t, (20, 0.01, 0.02), {"completed": 1})], {})
+    with pytest.raises(ValueError, match="no measurements"):
+        dataio.write_batch(tmp_path, [], {})
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda p: p.write_bytes(p.read_bytes()[:-20]), r"_batch\.csv:16: expected 3 comma-separated columns"),
+    (lambda p: p.write_bytes(b"".join(p.read_bytes().splitlines(True)[:-1])),
+     "15 samples, but its sidecar .* says 16 .a cut or extended file"),
+    (lambda p: p.write_bytes(p.read_bytes().replace(b"267.", b"268.", 1)), "SHA-256 mismatch"),
+    (lambda p: p.with_suffix(".json").unlink(), "sidecar .* missing: a batch without its sidecar"),
+    (lambda p: _edit_sidecar(p, lambda m: m["points"][1].update(gains=[20, "x", 0.02])),
+     r"field points\[1\]\.'gains' must be a list of three finite numbers"),
+    (lambda p: _edit_sidecar(p, lambda m: m["points"][0].update(samples=6)), "'samples' add up to 17, but .* has 16 rows"),
+    (lambda p: _edit_sidecar(p, lambda m: m["points"][2].update(completed="yes")),
+     r"field points\[2\]\.'completed' must be true or false"),
+    (lambda p: _edit_sidecar(p, lambda m: m.update(format=2)), "field 'format' must be 3"),
+    (lambda p: _edit_sidecar(p, lambda m: m.update(points=[])), "field 'points' must be a non-empty list"),
+])
+def test_a_damaged_batch_is_refused_naming_file_and_field(tmp_path, damage, message):
+    p, _ = _batch(tmp_path)
+    damage(p)
+    with pytest.raises(dataio.MeasurementError, match=message):
+        dataio.read_file(p)
+    with pytest.warns(UserWarning, match="1 of 1 measurement files skipped"):
+        read = dataio.read_measurements(tmp_path, strict=False)
+    assert read.measurements == [] and read.problems[0][0] == p
+
+
+def test_time_must_increase_within_each_measurement_of_a_batch(tmp_path):
+    p, _ = _batch(tmp_path)
+    lines = p.read_text().splitlines(keepends=True)
+    lines[7] = lines[6]   # the third row of the second measurement repeats its second
+    text = "".join(lines).encode()
+    p.write_bytes(text)
+    _edit_sidecar(p, lambda m: m.update(csv_sha256=__import__("hashlib").sha256(text).hexdigest()))
+    with pytest.raises(dataio.MeasurementError, match=r"_batch\.csv:8: time 0\.002 does not increase .* "
+                                                      r"within measurement 2 of the batch"):
+        dataio.read_file(p)
+
+
+def test_an_unfinished_batch_is_uncommitted_and_claimed_while_written(tmp_path, monkeypatch):
+    real = dataio.write_bytes_atomic
+    held = []
+
+    def dying(path, data, overwrite=False):
+        if str(path).endswith(".csv"):
+            uid = dataio.uncommitted_claim_key(path.with_suffix(".json"))
+            held.append(dataio.claim(tmp_path, uid))   # the writer holds its batch's name
+            raise KeyboardInterrupt
+        return real(path, data, overwrite)
+
+    monkeypatch.setattr(dataio, "write_bytes_atomic", dying)
+    with pytest.raises(KeyboardInterrupt):
+        _batch(tmp_path)
+    monkeypatch.undo()
+    assert held == [None]   # claimed by the writer while it wrote
+    assert dataio.list_measurements(tmp_path) == []
+    (left,) = dataio.find_uncommitted(tmp_path)
+    assert left.name.endswith("_batch.json")
+    key = dataio.uncommitted_claim_key(left)
+    assert key.startswith("lg") and dataio.claim(tmp_path, key) is not None   # released: the writer is gone

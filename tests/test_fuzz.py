@@ -406,7 +406,7 @@ def test_fuzz_interrupts_then_resume(tmp_path, monkeypatch):
                 pass
             monkeypatch.undo()
         io.sweep(dev, grid, d, duration=0.2, progress=False)
-        gains = sorted(tuple(dataio.read_measurement(p).gains) for p in dataio.list_measurements(d))
+        gains = sorted(tuple(m.gains) for p in dataio.list_measurements(d) for m in dataio.read_file(p))
         assert gains == sorted(grid)  # every point once, complete and correct
         assert dataio.find_uncommitted(d) == []
 

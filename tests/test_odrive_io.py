@@ -118,59 +118,58 @@ def _hashes(paths):
 GRID = io.thesis_grid()[::37][:8]
 
 
+def _points(directory):
+    """The measurements in a directory, all read (raises for anything damaged)."""
+    return [m for p in dataio.list_measurements(directory) for m in dataio.read_file(p)]
+
+
 def test_sweep_writes_every_point_and_resume_skips(dev, tmp_path):
     res = io.sweep(dev, GRID, tmp_path, progress=False)
-    assert len(res.written) == len(GRID) and res.skipped == 0
+    assert res.measured == len(GRID) and len(res.written) == 1 and res.skipped == 0   # one batch
+    assert sorted(m.gains for m in _points(tmp_path)) == sorted(tuple(g) for g in GRID)
     before = _hashes(res.paths)
     again = io.sweep(dev, GRID, tmp_path, progress=False)
-    assert again.skipped == len(GRID) and not again.written
+    assert again.skipped == len(GRID) and not again.written and again.measured == 0
     assert _hashes(again.paths) == before
     with pytest.raises(FileExistsError):
         io.sweep(dev, GRID, tmp_path, resume=False, progress=False)
 
 
-def test_exception_mid_sweep_keeps_files_and_resume_completes(dev, tmp_path, monkeypatch):
-    real_write = io.StepResponse.write
+def _failing_batch_write(monkeypatch, nth, exc):
+    real_write = dataio.write_batch
     calls = {"n": 0}
 
-    def flaky(self, out_dir, when=None):
+    def failing(*a, **kw):
         calls["n"] += 1
-        if calls["n"] == 4:
-            raise RuntimeError("disk full (injected)")
-        return real_write(self, out_dir, when)
+        if calls["n"] == nth:
+            raise exc
+        return real_write(*a, **kw)
+    monkeypatch.setattr(dataio, "write_batch", failing)
 
-    monkeypatch.setattr(io.StepResponse, "write", flaky)
+
+def test_exception_mid_sweep_keeps_files_and_resume_completes(dev, tmp_path, monkeypatch):
+    _failing_batch_write(monkeypatch, 3, RuntimeError("disk full (injected)"))
     with pytest.raises(RuntimeError, match="injected"):
-        io.sweep(dev, GRID, tmp_path, progress=False)
+        io.sweep(dev, GRID, tmp_path, chunk=2, progress=False)
     assert _idle(dev)
     kept = dataio.list_measurements(tmp_path)
-    assert len(kept) == 3
+    assert len(kept) == 2 and len(_points(tmp_path)) == 4   # two batches of two, intact
     before = _hashes(kept)
-    for p in kept:
-        dataio.read_measurement(p)  # intact
-    monkeypatch.setattr(io.StepResponse, "write", real_write)
-    res = io.sweep(dev, GRID, tmp_path, progress=False)
-    assert res.skipped == 3 and len(res.paths) == len(GRID)
+    monkeypatch.undo()
+    res = io.sweep(dev, GRID, tmp_path, chunk=2, progress=False)
+    assert res.skipped == 4 and res.measured == 4 and len(_points(tmp_path)) == len(GRID)
     assert {k: v for k, v in _hashes(res.paths).items() if k in before} == before
 
 
 def test_keyboard_interrupt_mid_sweep(dev, tmp_path, monkeypatch):
-    real_write = io.StepResponse.write
-    calls = {"n": 0}
-
-    def interrupted(self, out_dir, when=None):
-        calls["n"] += 1
-        if calls["n"] == 6:
-            raise KeyboardInterrupt
-        return real_write(self, out_dir, when)
-
-    monkeypatch.setattr(io.StepResponse, "write", interrupted)
+    _failing_batch_write(monkeypatch, 3, KeyboardInterrupt())
     with pytest.raises(KeyboardInterrupt):
-        io.sweep(dev, GRID, tmp_path, progress=False)
+        io.sweep(dev, GRID, tmp_path, chunk=2, progress=False)
     assert _idle(dev)
-    assert len(dataio.list_measurements(tmp_path)) == 5
-    monkeypatch.setattr(io.StepResponse, "write", real_write)
-    assert len(io.sweep(dev, GRID, tmp_path, progress=False).paths) == len(GRID)
+    assert len(_points(tmp_path)) == 4
+    monkeypatch.undo()
+    io.sweep(dev, GRID, tmp_path, progress=False)
+    assert len(_points(tmp_path)) == len(GRID)
 
 
 def test_injected_disconnect_mid_sweep_then_resume(tmp_path):
@@ -189,13 +188,13 @@ def test_injected_disconnect_mid_sweep_then_resume(tmp_path):
     with pytest.warns(UserWarning, match="could not set IDLE"):
         with pytest.raises(V.DeviceLostError):
             io.sweep(d, GRID, tmp_path, chunk=2, progress=False)
-    assert len(dataio.list_measurements(tmp_path)) == 4
+    assert len(dataio.list_measurements(tmp_path)) == 2 and len(_points(tmp_path)) == 4
     assert np.all(d.sim.st.AI[0, :, T.I_MODE] == T.MODE_IDLE)
     d2 = io.connect("virtual", seed=5)
     io.apply_configuration(d2)
     io.calibrate(d2)
     res = io.sweep(d2, GRID, tmp_path, progress=False)
-    assert res.skipped == 4 and len(res.paths) == len(GRID)
+    assert res.skipped == 4 and len(_points(tmp_path)) == len(GRID)
 
 
 def test_disconnect_in_closed_loop_watchdog_idles_the_motors(dev):
@@ -218,8 +217,7 @@ def test_per_point_and_sweep_paths_agree(dev, tmp_path):
     batch and single runs from one state: tests/test_twin.py)."""
     res = io.sweep(dev, GRID[:3], tmp_path, progress=False)
     one_count = 2 * np.pi / (dev.axes.cpr * dev.axes.gear_ratio)
-    for p in res.written:
-        m = dataio.read_measurement(p)
+    for m in _points(tmp_path):
         r = io.step_response(dev, *m.gains)
         assert m.meta["completed"] == r.completed
         n = min(len(r.t), len(m.t))

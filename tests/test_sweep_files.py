@@ -30,32 +30,35 @@ def _complete_and_correct(directory, grid):
     """Every grid point has exactly one readable file with exactly its gains."""
     found = {}
     for p in dataio.list_measurements(directory):
-        m = dataio.read_measurement(p)  # raises for anything damaged
-        assert m.absolute and m.meta["format"] == dataio.FORMAT
-        key = tuple(m.gains)
-        assert key not in found, (found.get(key), p)
-        found[key] = p
+        for m in dataio.read_file(p):  # raises for anything damaged
+            assert m.absolute and m.meta["format"] == (dataio.BATCH_FORMAT if dataio.is_batch_name(p)
+                                                       else dataio.FORMAT)
+            key = tuple(m.gains)
+            assert key not in found, (found.get(key), m.where)
+            found[key] = m.where
     assert set(found) == {tuple(g) for g in grid}
     return found
 
 
 def test_near_equal_gains_are_both_measured(dev, tmp_path):
     res = io.sweep(dev, GRID, tmp_path, **SHORT)
-    assert len(res.written) == 3 and res.skipped == 0
+    assert res.measured == 3 and len(res.written) == 1 and res.skipped == 0   # one batch file
     _complete_and_correct(tmp_path, GRID)
     again = io.sweep(dev, GRID, tmp_path, **SHORT)
-    assert again.skipped == 3 and not again.written
+    assert again.skipped == 3 and not again.written and again.measured == 0
 
 
-# the writes of one measurement: sidecar temp, sidecar name, CSV temp, CSV name (the commit)
+# the writes of one file (sweep.json, then the batch): sidecar temp, sidecar name, CSV
+# temp, CSV name (the commit)
 STEPS = [(fn, when) for fn in ("_write_temp", "_commit") for when in ("before", "after")]
 
 
-@pytest.mark.parametrize("nth", range(1, 9))
+@pytest.mark.parametrize("nth", range(1, 11))
 @pytest.mark.parametrize("before_or_after", ["before", "after"])
 def test_interrupt_at_every_point_of_writing_then_resume(dev, tmp_path, monkeypatch, nth, before_or_after):
-    """The n-th low-level write operation of the sweep (of 4 per measurement) is
-    interrupted before or after it happens; resume gives every point complete and correct."""
+    """The n-th low-level write operation of the sweep (2 for sweep.json, then 4 for each of
+    two batches: two points, one) is interrupted before or after it happens; resume gives
+    every point complete and correct."""
     calls = {"n": 0}
     real = {name: getattr(dataio, name) for name in ("_write_temp", "_commit")}
 
@@ -73,15 +76,31 @@ def test_interrupt_at_every_point_of_writing_then_resume(dev, tmp_path, monkeypa
     for name in real:
         monkeypatch.setattr(dataio, name, wrap(name))
     with pytest.raises(KeyboardInterrupt):
-        io.sweep(dev, GRID, tmp_path, **SHORT)
+        io.sweep(dev, GRID, tmp_path, chunk=2, **SHORT)
     monkeypatch.undo()
     for p in dataio.list_measurements(tmp_path):
-        dataio.read_measurement(p)  # what is listed is complete
+        dataio.read_file(p)  # what is listed is complete
     res = io.sweep(dev, GRID, tmp_path, **SHORT)
     _complete_and_correct(tmp_path, GRID)
     assert dataio.find_uncommitted(tmp_path) == []
-    assert res.skipped + len(res.written) == len(GRID)
+    assert res.skipped + res.measured == len(GRID)
     assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_a_live_writers_unfinished_batch_is_left_alone_and_a_dead_ones_set_aside(dev, tmp_path):
+    io.sweep(dev, GRID, tmp_path, **SHORT)
+    # a batch whose sidecar is written and whose CSV is not yet: its writer holds its name
+    side = (tmp_path / dataio.batch_filename(uid="0123456789ab")).with_suffix(".json")
+    side.write_text("{}")
+    writer = dataio.claim(tmp_path, "lg0123456789ab")
+    assert dataio.find_uncommitted(tmp_path) == [side]
+    res = io.sweep(dev, GRID, tmp_path, **SHORT)
+    assert res.set_aside == [] and side.exists()
+    writer.release()   # the writer is gone
+    res = io.sweep(dev, GRID, tmp_path, **SHORT)
+    assert [p.name for p in res.set_aside] == [side.name] and not side.exists()
+    assert (tmp_path / "incomplete" / side.name).exists()
+    _complete_and_correct(tmp_path, GRID)
 
 
 def test_old_orphan_csv_is_set_aside_and_measured_again(dev, tmp_path):
@@ -89,7 +108,7 @@ def test_old_orphan_csv_is_set_aside_and_measured_again(dev, tmp_path):
     orphan = tmp_path / "20210701_123005_30.000;0.050;0.020_positions.csv"
     orphan.write_text("0.000000,267.000000,273.000000\n0.002000,267.000000,273.000000\n")
     res = io.sweep(dev, GRID, tmp_path, **SHORT)
-    assert len(res.written) == 3 and [p.name for p in res.set_aside] == [orphan.name]
+    assert res.measured == 3 and [p.name for p in res.set_aside] == [orphan.name]
     assert (tmp_path / "incomplete" / orphan.name).exists()
     _complete_and_correct(tmp_path, GRID)
 
@@ -103,7 +122,7 @@ def test_thesis_files_are_the_real_leg_and_count_as_done(dev, tmp_path, monkeypa
     # matched on the three decimals its name holds
     monkeypatch.setattr(dev, "describe", lambda: {"backend": "usb", "firmware": "0.5.6"})
     res = io.sweep(dev, [(30.0, 0.0501, 0.02), (20.0, 0.0021, 0.02)], tmp_path, **SHORT)
-    assert res.skipped == 1 and len(res.written) == 1
+    assert res.skipped == 1 and res.measured == 1
 
 
 def test_sweep_on_another_payload_is_refused(dev, tmp_path):
@@ -133,7 +152,7 @@ WORKER = textwrap.dedent("""
     io.calibrate(d)
     grid = [(p, v, 0.02) for p in (20.0, 30.0) for v in np.linspace(0.01, 0.05, 6)]
     r = io.sweep(d, grid, sys.argv[1], duration=0.3, progress=False, chunk=2)
-    print(json.dumps({"written": len(r.written), "skipped": r.skipped}))
+    print(json.dumps({"measured": r.measured, "skipped": r.skipped}))
 """)
 
 
@@ -148,4 +167,4 @@ def test_two_concurrent_sweeps_into_one_directory_lose_and_duplicate_nothing(tmp
         outs.append(json.loads(out.strip().splitlines()[-1]))
     grid = [(p, v, 0.02) for p in (20.0, 30.0) for v in np.linspace(0.01, 0.05, 6)]
     _complete_and_correct(tmp_path, grid)
-    assert sum(o["written"] for o in outs) == len(grid)
+    assert sum(o["measured"] for o in outs) == len(grid)
