@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import get_num_threads, njit, prange
 
 # 10^0 .. 10^22, each exactly a double (parsed from decimal, so exact)
 _POW10 = np.array([float(f"1e{k}") for k in range(23)])
@@ -40,11 +40,11 @@ FIXED6_MAX_CHARS = 20  # sign, at most 10 integer digits (|x| < 2^50 / 1e6), poi
 
 
 @njit(cache=True)
-def _format_fixed6(data, out):
-    n, c = data.shape
-    k = 0
+def _format_fixed6(data, out, r0, r1, k):
+    """Rows r0..r1 of ``data`` into ``out`` from byte ``k``; the byte after the text, or -1."""
+    c = data.shape[1]
     ten = np.uint32(10)
-    for i in range(n):
+    for i in range(r0, r1):
         for j in range(c):
             x = data[i, j]
             a = abs(x)
@@ -83,15 +83,50 @@ def _format_fixed6(data, out):
     return k
 
 
-def format_fixed6(data: np.ndarray) -> bytes | None:
-    """Rows of ``data`` (2-D float) as ``"{:.6f},{:.6f},...\\n"`` ASCII bytes, exactly as
-    Python formats them; None when a value needs Python's formatting (see module notes)."""
+@njit(cache=True, parallel=True)
+def _format_parallel(data, out, rows, ends):
+    """:func:`_format_fixed6` of the row ranges ``rows`` (one per thread) side by side,
+    each into its own part of ``out``, which then is closed up; the length, or -1."""
+    parts = rows.size - 1
+    width = data.shape[1] * FIXED6_MAX_CHARS
+    for p in prange(parts):
+        ends[p] = _format_fixed6(data, out, rows[p], rows[p + 1], rows[p] * width)
+    k = 0
+    for p in range(parts):
+        if ends[p] < 0:
+            return -1
+        start = rows[p] * width
+        if k != start:   # (numba copies overlapping slices through a temporary)
+            out[k:k + ends[p] - start] = out[start:ends[p]]
+        k += ends[p] - start
+    return k
+
+
+PARALLEL_BYTES = 1 << 20   # below about this much text one thread formats or parses it
+
+
+def format_fixed6_array(data: np.ndarray) -> np.ndarray | None:
+    """:func:`format_fixed6` as a uint8 array (no copy into bytes; hashlib and os.write
+    take it as it is); large tables are formatted on the cores present."""
     data = np.ascontiguousarray(data, dtype=np.float64)
     if data.ndim != 2:
         return None
     out = np.empty(data.size * FIXED6_MAX_CHARS, np.uint8)
-    k = _format_fixed6(data, out)
-    return None if k < 0 else out[:k].tobytes()
+    n = data.shape[0]
+    parts = min(get_num_threads(), max(1, data.size * 10 // PARALLEL_BYTES))
+    if parts == 1:
+        k = _format_fixed6(data, out, 0, n, 0)
+    else:
+        rows = np.linspace(0, n, parts + 1).astype(np.int64)
+        k = _format_parallel(data, out, rows, np.empty(parts, np.int64))
+    return None if k < 0 else out[:k]
+
+
+def format_fixed6(data: np.ndarray) -> bytes | None:
+    """Rows of ``data`` (2-D float) as ``"{:.6f},{:.6f},...\\n"`` ASCII bytes, exactly as
+    Python formats them; None when a value needs Python's formatting (see module notes)."""
+    out = format_fixed6_array(data)
+    return None if out is None else out.tobytes()
 
 
 @njit(cache=True)
@@ -157,10 +192,11 @@ def _number(b, i, end):
 
 
 @njit(cache=True)
-def _parse3(b, max_line, angle_limit, increasing, out):
-    n = b.size
-    pos = 0
-    rows = 0
+def _parse3(b, lo, n, max_line, angle_limit, increasing, out, r0):
+    """The lines of b[lo:n] (whole lines) into rows of ``out`` from ``r0``; their number,
+    or -1."""
+    pos = lo
+    rows = r0
     prev = -math.inf
     while pos < n:
         # leading whitespace: a line of whitespace only is skipped (str.strip); before a
@@ -203,7 +239,52 @@ def _parse3(b, max_line, angle_limit, increasing, out):
             prev = out[rows, 0]
         rows += 1
         pos = i + 1
-    return rows
+    return rows - r0
+
+
+@njit(cache=True)
+def _parse_parts(b, bounds, max_line, angle_limit, increasing):
+    return _parse_parts_impl(b, bounds, max_line, angle_limit, increasing)
+
+
+@njit(cache=True, parallel=True)
+def _parse_parts_parallel(b, bounds, max_line, angle_limit, increasing):
+    return _parse_parts_impl(b, bounds, max_line, angle_limit, increasing)
+
+
+@njit(cache=True, inline="always")
+def _parse_parts_impl(b, bounds, max_line, angle_limit, increasing):
+    """:func:`_parse3` of the parts b[bounds[p]:bounds[p + 1]] (whole lines each), side by
+    side (a prange: on the cores present when compiled parallel), their rows closed up;
+    an empty array when a part gives -1 or no row at all is found."""
+    parts = bounds.size - 1
+    lines = np.empty(parts, np.int64)
+    for p in prange(parts):
+        m = 1
+        for i in range(bounds[p], bounds[p + 1]):
+            m += b[i] == 10
+        lines[p] = m
+    first = np.zeros(parts + 1, np.int64)
+    for p in range(parts):
+        first[p + 1] = first[p] + lines[p]
+    out = np.empty((first[parts], 3))
+    got = np.empty(parts, np.int64)
+    for p in prange(parts):
+        got[p] = _parse3(b, bounds[p], bounds[p + 1], max_line, angle_limit, increasing, out, first[p])
+    k = 0
+    last = -math.inf
+    for p in range(parts):
+        if got[p] < 0:
+            return out[:0]
+        if got[p] == 0:
+            continue
+        if increasing and not out[first[p], 0] > last:   # across the parts' seam
+            return out[:0]
+        last = out[first[p] + got[p] - 1, 0]
+        if k != first[p]:   # (numba copies overlapping slices through a temporary)
+            out[k:k + got[p]] = out[first[p]:first[p] + got[p]]
+        k += got[p]
+    return out[:k]
 
 
 def parse3(raw: bytes, max_line: int, angle_limit: float = math.inf, increasing: bool = False) -> np.ndarray | None:
@@ -213,6 +294,15 @@ def parse3(raw: bytes, max_line: int, angle_limit: float = math.inf, increasing:
     ``angle_limit`` bounds |column 2| and |column 3|; ``increasing`` requires column 1 to
     increase strictly."""
     b = np.frombuffer(raw, dtype=np.uint8)
-    out = np.empty((raw.count(b"\n") + 1, 3))
-    rows = _parse3(b, max_line, float(angle_limit), increasing, out)
-    return None if rows <= 0 else out[:rows]
+    parts = min(get_num_threads(), max(1, b.size // PARALLEL_BYTES))
+    bounds = [0]
+    for p in range(1, parts):   # each part whole lines: it starts after a newline
+        cut = raw.find(b"\n", max(bounds[-1], b.size * p // parts))
+        if cut < 0:
+            break
+        bounds.append(cut + 1)
+    bounds.append(b.size)
+    bounds = np.array(bounds, np.int64)
+    parse = _parse_parts if bounds.size == 2 else _parse_parts_parallel
+    out = parse(b, bounds, max_line, float(angle_limit), increasing)
+    return None if out.shape[0] == 0 else out

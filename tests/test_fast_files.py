@@ -1,6 +1,6 @@
 """Fast measurement files: the compiled CSV codec gives Python's numbers and text bit for
 bit and leaves every error to the careful reader; sidecar text as json.dumps; a twin
-sweep's batch flushed once; a sweep read back and mapped exactly as before."""
+sweep's batch file flushed once; a sweep read back and mapped exactly as one by one."""
 
 import json
 import os
@@ -40,11 +40,38 @@ def _tables():
 
 def test_csv_text_is_pythons_to_the_byte():
     for data in _tables():
-        assert dataio._csv_bytes(data) == _python_csv(data)
+        assert bytes(dataio._csv_bytes(data)) == _python_csv(data)
         for row in data:  # the compiled formatter alone, where it formats
             got = csvcodec.format_fixed6(row[None])
             assert got is None or got == _python_csv(row[None])
-    assert dataio._csv_bytes(np.zeros((0, 3))) == b""
+    assert bytes(dataio._csv_bytes(np.zeros((0, 3)))) == b""
+
+
+def test_a_large_table_is_formatted_and_parsed_in_parts_as_in_one(monkeypatch):
+    """Text of 1 MB and more is split among the cores, in whole lines; its rows are the
+    same, and the checks hold across the seams (time increasing, a bad line anywhere)."""
+    rng = np.random.default_rng(3)
+    n = 120_000
+    data = np.column_stack([np.arange(n) * 0.002, 267 + rng.normal(0, 20, n), 273 + rng.normal(0, 20, n)])
+    monkeypatch.setattr(csvcodec, "get_num_threads", lambda: 4)
+    raw = csvcodec.format_fixed6(data)
+    assert raw == _python_csv(data)
+    parsed = csvcodec.parse3(raw, 512, 3600.0, increasing=True)
+    assert _bits(parsed) == _bits(_python_rows(raw))
+    # the rows where the parts meet (as parse3 cuts: after the newline following each quarter)
+    seams = [raw[:raw.find(b"\n", len(raw) * p // 4) + 1].count(b"\n") for p in (1, 2, 3)]
+    for row in seams + [n - 1]:
+        bad = data.copy()
+        bad[row, 0] = bad[row - 1, 0]   # time stands still there
+        text = _python_csv(bad)
+        assert csvcodec.parse3(text, 512, 3600.0, increasing=True) is None
+        assert _bits(csvcodec.parse3(text, 512, 3600.0)) == _bits(_python_rows(text))
+        lines = raw.split(b"\n")
+        lines[row] = lines[row].replace(b",", b";", 1)
+        assert csvcodec.parse3(b"\n".join(lines), 512) is None
+    monkeypatch.setattr(csvcodec, "PARALLEL_BYTES", 1 << 40)   # one part
+    assert csvcodec.format_fixed6(data) == raw
+    assert _bits(csvcodec.parse3(raw, 512, 3600.0, increasing=True)) == _bits(parsed)
 
 
 def test_compiled_parser_reads_as_float_does():
@@ -151,8 +178,8 @@ def test_a_twin_batch_is_flushed_once_and_a_real_leg_file_by_file(dev, tmp_path,
     monkeypatch.setattr(os, "fsync", fsync)
     grid = [(20.0, 0.03, 0.02), (30.0, 0.05, 0.02), (40.0, 0.05, 0.02)]
     res = io.sweep(dev, grid, tmp_path / "twin", duration=0.2, progress=False)
-    assert len(res.written) == 3
-    # sweep.json (file and directory), then the batch's six files: their directory, once
+    assert res.measured == 3 and len(res.written) == 1
+    # sweep.json (file and directory), then the batch's two files: their directory, once
     assert synced == ["file", "dir", "dir"]
     synced.clear()
     t = np.arange(5) * 0.002
@@ -167,15 +194,15 @@ def test_sweep_reads_back_and_maps_as_before(dev, tmp_path):
     grid = [(p, v, i) for p in (20.0, 40.0) for v in (0.01, 0.05, 0.1) for i in (0.002, 0.02)]
     res = io.sweep(dev, grid, tmp_path, duration=0.6, progress=False)
     leg = load_leg("thesis")
-    for p in res.written:
-        raw = p.read_bytes()
-        m = dataio.read_measurement(p)
-        ref = _python_rows(raw)
-        assert _bits(np.column_stack([m.t, m.angle1, m.angle2])) == _bits(ref)
-        assert _python_csv(ref) == raw  # what was written is Python's text of these numbers
-    # the map as the file-by-file path built it
-    old = [GM.identify_response(io.StepResponse.from_measurement(dataio.read_measurement(p), leg))
-           for p in dataio.list_measurements(tmp_path)]
+    (p,) = res.written   # one batch file
+    raw = p.read_bytes()
+    ms = dataio.read_file(p)
+    ref = _python_rows(raw)
+    assert len(ms) == len(grid) and [m.gains for m in ms] == [tuple(g) for g in grid]
+    assert _bits(np.concatenate([np.column_stack([m.t, m.angle1, m.angle2]) for m in ms])) == _bits(ref)
+    assert _python_csv(ref) == raw  # what was written is Python's text of these numbers
+    # the map as identifying the measurements one by one builds it
+    old = [GM.identify_response(io.StepResponse.from_measurement(m, leg)) for m in ms]
     new = GM.GainMap.from_measurements(tmp_path).points
     assert [(p.gains, p.status, p.reason) for p in new] == [(p.gains, p.status, p.reason) for p in old]
     assert _bits([(p.zeta, p.wn, p.r2) for p in new]) == _bits([(p.zeta, p.wn, p.r2) for p in old])
