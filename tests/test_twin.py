@@ -313,3 +313,22 @@ def test_a_vectorized_block_gives_the_leg_by_leg_numbers():
     np.testing.assert_array_equal(rec_vec, rec_leg[:B])
     for name in ("X", "AS", "AI", "ABORT", "RNG"):
         np.testing.assert_array_equal(getattr(vec, name), getattr(leg, name)[:B], err_msg=name)
+
+
+def test_leg_seeds_are_numpys_seed_sequence_for_every_leg():
+    """seeds_for mixes all legs' words at once; each state is SeedSequence's for that leg."""
+    rng = np.random.default_rng(0)
+
+    def one_by_one(seed, keys):
+        return np.array([np.random.SeedSequence(T._seed_words(seed, k)).generate_state(1, np.uint64)[0]
+                         | np.uint64(1) for k in keys], dtype=np.uint64)
+
+    for _ in range(150):
+        m, n = int(rng.integers(0, 7)), int(rng.integers(1, 20))
+        keys = [tuple(float(rng.choice([0.0, -0.0, 0.5e-6, 1.5e-6, -2.5e-6])) if rng.random() < 0.2
+                      else rng.normal(0, 10 ** rng.uniform(-7, 6)) for _ in range(m)) for _ in range(n)]
+        seed = int(rng.integers(-2 ** 40, 2 ** 40))
+        np.testing.assert_array_equal(T.seeds_for(seed, keys), one_by_one(seed, keys))
+    from leglib.odrive_io import thesis_grid
+    keys = [tuple(g) + (0.4, 1.5) for g in thesis_grid()]
+    np.testing.assert_array_equal(T.seeds_for(11, keys), one_by_one(11, keys))
