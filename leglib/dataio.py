@@ -1020,6 +1020,9 @@ class Claim:
             os.close(self._fd)
             self._fd = None
 
+    def __del__(self):   # a claim nobody holds any more is released
+        self.release()
+
 
 CLAIMS_FILE = ".claims.lock"
 # Linux: one byte of one lock file per point, locked with an open-file-description lock
@@ -1030,30 +1033,90 @@ _OFD = (getattr(fcntl, "F_OFD_SETLK", None), getattr(fcntl, "F_OFD_SETLKW", None
 _FLOCK_STRUCT = "hhqqi4x"   # struct flock on 64-bit Linux: type, whence, start, len, pid
 
 
-def _claim_ofd(directory: str | Path, digest: bytes, wait: bool) -> Claim | None:
+def _ofd_lock(fd: int, digest: bytes, wait: bool) -> bool:
+    """Lock the byte of ``digest`` on the open file ``fd``; False if another holds it."""
     import struct
-    fd = os.open(os.path.join(directory, CLAIMS_FILE), os.O_RDWR | os.O_CREAT, 0o666)
     offset = int.from_bytes(digest[:7], "big")   # a byte of a sparse range below 2^56
     lock = struct.pack(_FLOCK_STRUCT, fcntl.F_WRLCK, os.SEEK_SET, offset, 1, 0)
     try:
         fcntl.fcntl(fd, _OFD[1] if wait else _OFD[0], lock)
     except OSError as exc:
-        os.close(fd)
         if exc.errno in (errno.EAGAIN, errno.EACCES):
-            return None
+            return False
         raise
+    return True
+
+
+def _use_ofd() -> bool:
+    return _OFD[0] is not None and sys.platform == "linux"
+
+
+def _digest(key) -> bytes:
+    return hashlib.sha1((key if isinstance(key, str) else exact_gains_key(key)).encode()).digest()
+
+
+def _claim_ofd(directory: str | Path, digest: bytes, wait: bool) -> Claim | None:
+    fd = os.open(os.path.join(directory, CLAIMS_FILE), os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        if _ofd_lock(fd, digest, wait):
+            return Claim(fd)
     except BaseException:
         os.close(fd)
         raise
-    return Claim(fd)
+    os.close(fd)
+    return None
+
+
+class _Claims(Claim):
+    """Claims of many points held together (released together)."""
+
+    def __init__(self, claims: list):
+        super().__init__(None)
+        self._claims = claims
+
+    def release(self) -> None:
+        while self._claims:
+            self._claims.pop().release()
+
+
+def claim_many(directory: str | Path, keys, limit: int | None = None) -> tuple[Claim, list]:
+    """:func:`claim` of each of ``keys`` (gains), up to ``limit`` taken: (one Claim that
+    releases them all, a list of True where a key was taken). On Linux all are bytes
+    locked on one open lock file (one open for a sweep's batch, not one per point)."""
+    keys = list(keys)
+    limit = len(keys) if limit is None else limit
+    taken = []
+    if _use_ofd():
+        fd = os.open(os.path.join(directory, CLAIMS_FILE), os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            n = 0
+            for key in keys:
+                ok = n < limit and _ofd_lock(fd, _digest(key), False)
+                n += ok
+                taken.append(ok)
+        except BaseException:
+            os.close(fd)
+            raise
+        return Claim(fd), taken
+    held = []
+    try:
+        for key in keys:
+            c = claim(directory, key) if len(held) < limit else None
+            if c is not None:
+                held.append(c)
+            taken.append(c is not None)
+    except BaseException:
+        _Claims(held).release()
+        raise
+    return _Claims(held), taken
 
 
 def claim(directory: str | Path, gains, wait: bool = False) -> Claim | None:
     """Claim the point ``gains`` in ``directory`` (or, given a string, that name: a batch
     being written); None if another process holds it (``wait=True`` blocks until it is
     released)."""
-    digest = hashlib.sha1((gains if isinstance(gains, str) else exact_gains_key(gains)).encode()).digest()
-    if _OFD[0] is not None and sys.platform == "linux":
+    digest = _digest(gains)
+    if _use_ofd():
         return _claim_ofd(directory, digest, wait)
     locks = os.path.join(directory, ".claims")
     lock = os.path.join(locks, digest.hex()[:20] + ".lock")

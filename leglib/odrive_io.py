@@ -1159,14 +1159,10 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
             else:
                 size = 1
             while queue:
-                block, waiting = [], []
-                for g in queue:
-                    c = dataio.claim(out_dir, g) if len(block) < size else None
-                    if c is None:
-                        waiting.append(g)
-                    else:
-                        claims.append(c)
-                        block.append(g)
+                held, taken = dataio.claim_many(out_dir, queue, limit=size)
+                claims.append(held)
+                block = [g for g, ok in zip(queue, taken) if ok]
+                waiting = [g for g, ok in zip(queue, taken) if not ok]
                 if block:  # a point another writer committed meanwhile is done
                     now = dataio.committed_gains(out_dir)
                     keep = [tuple(float(x) for x in g) not in now for g in block]

@@ -261,6 +261,24 @@ def test_claims_are_exclusive_and_released(tmp_path):
     assert dataio.claim(tmp_path, (1.0, 2.0, 3.0)) is not None
 
 
+@pytest.mark.parametrize("ofd", [True, False], ids=["one lock file", "a lock file per point"])
+def test_many_claims_at_once_take_the_free_points_up_to_a_limit(tmp_path, monkeypatch, ofd):
+    if ofd and sys.platform != "linux":
+        pytest.skip("open-file-description locks are Linux's")
+    monkeypatch.setattr(dataio, "_use_ofd", lambda: ofd)
+    keys = [(float(i), 0.05, 0.01) for i in range(10)]
+    other = dataio.claim(tmp_path, keys[3])
+    held, taken = dataio.claim_many(tmp_path, keys, limit=6)
+    assert taken == [True, True, True, False, True, True, True, False, False, False]
+    last = dataio.claim(tmp_path, keys[9])
+    assert dataio.claim(tmp_path, keys[0]) is None and last is not None
+    for c in (held, other, last):
+        c.release()
+    again, taken = dataio.claim_many(tmp_path, keys)
+    assert all(taken)   # all released
+    again.release()
+
+
 def test_a_claim_held_by_another_process_is_refused_until_it_ends(tmp_path):
     import subprocess
     import sys
