@@ -567,6 +567,47 @@ def _fit_packed_parallel(t, y, bounds, out, status):
         status[k] = _fit_one(t[a:b], y[a:b], out[k])
 
 
+@njit(cache=True)
+def _shape_row(t, y, out):
+    """A response's start (mean of its first n/50 samples, at least 3) and final value (of
+    its last n/5, at least 5), its largest excursion beyond the final value in the step's
+    direction, and the median of its sample spacings."""
+    n = y.size
+    out[:] = math.nan
+    if n < 2:
+        return
+    nh = min(n, max(3, n // 50))
+    nt = min(n, max(5, n // 5))
+    start = np.mean(y[:nh])
+    final = np.mean(y[n - nt:])
+    sign = 1.0 if final - start > 0.0 else -1.0
+    peak = -np.inf
+    for i in range(n):
+        peak = max(peak, sign * (y[i] - final))
+    out[0], out[1], out[2] = start, final, peak
+    out[3] = np.median(np.diff(t))
+
+
+@njit(cache=True)
+def _shapes_packed(t, y, bounds, out):
+    for k in range(bounds.size - 1):
+        _shape_row(t[bounds[k]:bounds[k + 1]], y[bounds[k]:bounds[k + 1]], out[k])
+
+
+def shape_numbers(ts, ys) -> np.ndarray:
+    """Per response (equal-length 1-D t and y): start, final value, the peak beyond the
+    final value in the step's direction, median sample spacing [s] -- what
+    :func:`leglib.gainmap.step_shape_problem` judges, for many responses in one call."""
+    sizes = np.fromiter((np.size(t) for t in ts), dtype=np.int64, count=len(ts))
+    bounds = np.zeros(sizes.size + 1, dtype=np.int64)
+    np.cumsum(sizes, out=bounds[1:])
+    t = np.concatenate([np.asarray(x, dtype=float).ravel() for x in ts]) if len(ts) else np.empty(0)
+    y = np.concatenate([np.asarray(x, dtype=float).ravel() for x in ys]) if len(ys) else np.empty(0)
+    out = np.empty((sizes.size, 4))
+    _shapes_packed(t, y, bounds, out)
+    return out
+
+
 # below this many responses one thread fits them (the thread pool costs more than it gives)
 PARALLEL_FROM = 16
 

@@ -87,7 +87,7 @@ class PointResult:
         return self.wn / (2 * math.pi)
 
 
-def step_shape_problem(t, y, fit) -> str | None:
+def step_shape_problem(t, y, fit, shape=None) -> str | None:
     """Why a fitted step response is not a second-order step, or None when it is one.
 
     Parameters
@@ -95,6 +95,8 @@ def step_shape_problem(t, y, fit) -> str | None:
     t : (N,) time [s]
     y : (N,) response (e.g. foot height [m])
     fit : :class:`leglib.identify.SecondOrderFit` of (t, y)
+    shape : the response's :func:`leglib.fastfit.shape_numbers` row when already computed
+        (for many responses at once); computed here otherwise
 
     The tests: the fit explains at least :data:`MIN_R2_MAP` of the response (R^2); the
     response overshoots its final value by less than :data:`MAX_OVERSHOOT` of the step (no
@@ -105,25 +107,23 @@ def step_shape_problem(t, y, fit) -> str | None:
     if not fit.r2 >= MIN_R2_MAP:
         return (f"not a second-order step: the fit explains R^2 = {fit.r2:.2f} of it "
                 f"(the map needs {MIN_R2_MAP})")
-    t = np.asarray(t, dtype=float)
-    y = np.asarray(y, dtype=float)
-    n = y.size
-    start = float(np.mean(y[: max(3, n // 50)]))
-    final = float(np.mean(y[-max(5, n // 5):]))
+    if shape is None:
+        from .fastfit import shape_numbers
+        shape = shape_numbers([t], [y])[0]
+    start, final, peak, spacing = (float(v) for v in shape)
     step = final - start
-    peak = float(np.max(y - final)) if step > 0 else float(np.max(final - y))
     if step != 0 and peak / abs(step) >= MAX_OVERSHOOT:
         return f"not a second-order step: it overshoots by {peak / abs(step):.0%} of its step"
     if fit.zeta > 1:
         fast = fit.wn * (fit.zeta + math.sqrt(fit.zeta ** 2 - 1))
-        nyquist = math.pi / float(np.median(np.diff(t)))
+        nyquist = math.pi / spacing
         if fast > nyquist:
             return (f"not a second-order step: the fit's fast pole ({fast:.3g} rad/s, zeta {fit.zeta:.3g}) "
                     f"lies beyond the sampling's Nyquist rate ({nyquist:.3g} rad/s)")
     return None
 
 
-def identify_response(resp, method: str = "fit", fit=None) -> PointResult:
+def identify_response(resp, method: str = "fit", fit=None, shape=None) -> PointResult:
     """Identify one :class:`leglib.odrive_io.StepResponse` (foot height ``y``).
 
     Returns a :class:`PointResult` with status "unstable" (the step was aborted), "failed"
@@ -132,7 +132,7 @@ def identify_response(resp, method: str = "fit", fit=None) -> PointResult:
     second-order step, :func:`step_shape_problem`) or "ok" with zeta, wn [rad/s] and r2.
     A "failed" point never carries numbers; ``reason`` says why. ``fit``: the response's
     ``second_order`` result (or its IdentificationError) when already computed, e.g. by
-    :func:`identify_many`'s batch.
+    :func:`identify_many`'s batch; ``shape`` likewise its :func:`step_shape_problem` numbers.
     """
     g = tuple(float(x) for x in resp.gains)
     if not resp.completed:
@@ -147,7 +147,7 @@ def identify_response(resp, method: str = "fit", fit=None) -> PointResult:
         f = second_order(resp.t, resp.y, method=method) if fit is None else fit
     except IdentificationError as exc:
         return PointResult(g, STATUS_FAILED, reason=str(exc))
-    problem = step_shape_problem(resp.t, resp.y, f)
+    problem = step_shape_problem(resp.t, resp.y, f, shape)
     if problem:
         return PointResult(g, STATUS_FAILED, r2=f.r2, reason=problem, fit=f)
     return PointResult(g, STATUS_OK, f.zeta, f.wn, f.r2, fit=f)
@@ -169,15 +169,17 @@ def identify_many(responses, method: str = "fit", workers: int | None = None) ->
     -------
     list of PointResult, in the order of ``responses``
     """
-    from .fastfit import identify_batch
+    from .fastfit import identify_batch, shape_numbers
 
     responses = list(responses)
     if method != "fit":
         return [identify_response(r, method) for r in responses]
     done = [r for r in responses if r.completed]
     fits = iter(identify_batch([r.t for r in done], [r.y for r in done]))
-    # the same checks as one by one (gains, shape, fit quality), on the batch's fits
-    return [identify_response(r, method, fit=next(fits) if r.completed else None) for r in responses]
+    shapes = iter(shape_numbers([r.t for r in done], [r.y for r in done]))
+    # the same checks as one by one (gains, shape, fit quality), on the batch's numbers
+    return [identify_response(r, method, fit=next(fits), shape=next(shapes)) if r.completed
+            else identify_response(r, method) for r in responses]
 
 
 def harmonic_fill(values: np.ndarray, known: np.ndarray) -> np.ndarray:

@@ -137,3 +137,20 @@ def test_critical_band_is_critical_damping(zeta):
     # identify._model takes |zeta - 1| <= 1e-6 as critical damping: so does the fit
     f = second_order(T, _model(T, zeta, 40.0, 1.0, 0.0, 0.0))
     assert f.zeta == 1.0 and math.isnan(f.fd) and f.overdamped
+
+
+def test_shape_numbers_are_the_responses_start_final_peak_and_spacing():
+    rng = np.random.default_rng(4)
+    ts, ys = [], []
+    for n in (2, 3, 20, 301, 750):
+        t = np.cumsum(rng.uniform(0.001, 0.003, n))
+        ts.append(t)
+        ys.append(np.tanh(t * 5) * rng.choice([-1, 1]) + rng.normal(0, 0.01, n))
+    got = F.shape_numbers(ts, ys)
+    for (t, y), row in zip(zip(ts, ys), got):
+        n = y.size
+        start, final = np.mean(y[:max(3, n // 50)]), np.mean(y[-max(5, n // 5):])
+        peak = np.max(y - final) if final > start else np.max(final - y)
+        # the means summed in order (numpy sums pairwise): equal to rounding
+        np.testing.assert_allclose(row[:3], [start, final, peak], rtol=1e-13, atol=1e-15)
+        assert row[3] == np.median(np.diff(t))
