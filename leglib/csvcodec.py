@@ -84,22 +84,14 @@ def _format_fixed6(data, out, r0, r1, k):
 
 
 @njit(cache=True, parallel=True)
-def _format_parallel(data, out, rows, ends):
+def _format_parts(data, out, rows, ends):
     """:func:`_format_fixed6` of the row ranges ``rows`` (one per thread) side by side,
-    each into its own part of ``out``, which then is closed up; the length, or -1."""
-    parts = rows.size - 1
+    each into its own part of ``out`` (from ``rows[p]`` times the row width), its end
+    into ``ends``. (No array expression here: in a parallel function numba would share
+    it out among the threads, and the parts are closed up by copies that overlap.)"""
     width = data.shape[1] * FIXED6_MAX_CHARS
-    for p in prange(parts):
+    for p in prange(rows.size - 1):
         ends[p] = _format_fixed6(data, out, rows[p], rows[p + 1], rows[p] * width)
-    k = 0
-    for p in range(parts):
-        if ends[p] < 0:
-            return -1
-        start = rows[p] * width
-        if k != start:   # (numba copies overlapping slices through a temporary)
-            out[k:k + ends[p] - start] = out[start:ends[p]]
-        k += ends[p] - start
-    return k
 
 
 PARALLEL_BYTES = 1 << 20   # below about this much text one thread formats or parses it
@@ -118,7 +110,15 @@ def format_fixed6_array(data: np.ndarray) -> np.ndarray | None:
         k = _format_fixed6(data, out, 0, n, 0)
     else:
         rows = np.linspace(0, n, parts + 1).astype(np.int64)
-        k = _format_parallel(data, out, rows, np.empty(parts, np.int64))
+        ends = np.empty(parts, np.int64)
+        _format_parts(data, out, rows, ends)
+        if np.any(ends < 0):
+            return None
+        k = 0
+        for p in range(parts):   # close up (numpy copies overlapping ranges correctly)
+            start = rows[p] * data.shape[1] * FIXED6_MAX_CHARS
+            out[k:k + ends[p] - start] = out[start:ends[p]]
+            k += ends[p] - start
     return None if k < 0 else out[:k]
 
 
@@ -255,8 +255,9 @@ def _parse_parts_parallel(b, bounds, max_line, angle_limit, increasing):
 @njit(cache=True, inline="always")
 def _parse_parts_impl(b, bounds, max_line, angle_limit, increasing):
     """:func:`_parse3` of the parts b[bounds[p]:bounds[p + 1]] (whole lines each), side by
-    side (a prange: on the cores present when compiled parallel), their rows closed up;
-    an empty array when a part gives -1 or no row at all is found."""
+    side (a prange: on the cores present when compiled parallel): (rows, the first row
+    of each part, the rows each gave or -1). (No array expression here: in a parallel
+    function numba would share it out among the threads.)"""
     parts = bounds.size - 1
     lines = np.empty(parts, np.int64)
     for p in prange(parts):
@@ -271,20 +272,7 @@ def _parse_parts_impl(b, bounds, max_line, angle_limit, increasing):
     got = np.empty(parts, np.int64)
     for p in prange(parts):
         got[p] = _parse3(b, bounds[p], bounds[p + 1], max_line, angle_limit, increasing, out, first[p])
-    k = 0
-    last = -math.inf
-    for p in range(parts):
-        if got[p] < 0:
-            return out[:0]
-        if got[p] == 0:
-            continue
-        if increasing and not out[first[p], 0] > last:   # across the parts' seam
-            return out[:0]
-        last = out[first[p] + got[p] - 1, 0]
-        if k != first[p]:   # (numba copies overlapping slices through a temporary)
-            out[k:k + got[p]] = out[first[p]:first[p] + got[p]]
-        k += got[p]
-    return out[:k]
+    return out, first, got
 
 
 def parse3(raw: bytes, max_line: int, angle_limit: float = math.inf, increasing: bool = False) -> np.ndarray | None:
@@ -304,5 +292,14 @@ def parse3(raw: bytes, max_line: int, angle_limit: float = math.inf, increasing:
     bounds.append(b.size)
     bounds = np.array(bounds, np.int64)
     parse = _parse_parts if bounds.size == 2 else _parse_parts_parallel
-    out = parse(b, bounds, max_line, float(angle_limit), increasing)
-    return None if out.shape[0] == 0 else out
+    out, first, got = parse(b, bounds, max_line, float(angle_limit), increasing)
+    if np.any(got < 0):
+        return None
+    k = 0
+    for p in range(got.size):   # close up (numpy copies overlapping ranges correctly)
+        if got[p]:
+            if increasing and k and not out[first[p], 0] > out[k - 1, 0]:   # across the seam
+                return None
+            out[k:k + got[p]] = out[first[p]:first[p] + got[p]]
+            k += got[p]
+    return None if k == 0 else out[:k]
