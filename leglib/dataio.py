@@ -435,8 +435,8 @@ def write_batch(out_dir: str | Path, series, meta: dict, when: _dt.datetime | No
     data = np.empty((sum(p["samples"] for p in points), 3))
     for j in range(3):
         np.concatenate([c[j] for c in columns], out=data[:, j])
-    good = np.isfinite(data).all(axis=1) & (np.abs(data[:, 1:]) <= ANGLE_LIMIT_DEG).all(axis=1)
-    if not good.all():
+    if not (np.isfinite(data).all() and np.abs(data[:, 1:]).max() <= ANGLE_LIMIT_DEG):
+        good = np.isfinite(data).all(axis=1) & (np.abs(data[:, 1:]) <= ANGLE_LIMIT_DEG).all(axis=1)
         k = int(np.searchsorted(np.cumsum([p["samples"] for p in points]), np.argmin(good), side="right"))
         raise ValueError(f"write_batch: measurement {k}: values must be finite and angles within "
                          f"+-{ANGLE_LIMIT_DEG} deg")

@@ -779,24 +779,23 @@ class StepResponse:
     @classmethod
     def from_measurements(cls, measurements, leg: LegParams) -> list["StepResponse"]:
         """:meth:`from_measurement` of each file, the foot heights of all in one call."""
-        joints = []
-        for m in measurements:
-            q1 = np.radians(m.angle1)
-            q2 = np.radians(m.angle2)
+        measurements = list(measurements)
+        if not measurements:
+            return []
+        # all files' angles at once (elementwise: the same numbers as file by file)
+        cuts = np.cumsum([m.angle1.size for m in measurements])[:-1]
+        Q1 = np.radians(np.concatenate([m.angle1 for m in measurements]))
+        Q2 = np.radians(np.concatenate([m.angle2 for m in measurements]))
+        for m, a, b in zip(measurements, np.concatenate([[0], cuts]), np.concatenate([cuts, [Q1.size]])):
             if not m.absolute:
                 # Listing 7.4 zeroes the angles at the start and records 360/cpr/3 * counts of
                 # the motor, i.e. joint angle changes in the motor's sense: convert to joint
-                q1 = leg.q1 + leg.direction * q1
-                q2 = leg.q2 + leg.direction * q2
-            joints.append((q1, q2))
-        if not joints:
-            return []
-        _, y = foot_position(leg, np.concatenate([q1 for q1, _ in joints]),
-                             np.concatenate([q2 for _, q2 in joints]))
-        ys = np.split(y, np.cumsum([q1.size for q1, _ in joints])[:-1])
-        return [cls(t=m.t - m.t[0], q1=q1, q2=q2, y=yi, gains=m.gains, step=m.meta.get("step_turns", 0.4),
+                Q1[a:b] = leg.q1 + leg.direction * Q1[a:b]
+                Q2[a:b] = leg.q2 + leg.direction * Q2[a:b]
+        _, Y = foot_position(leg, Q1, Q2)
+        return [cls(t=m.t - m.t[0], q1=q1, q2=q2, y=y, gains=m.gains, step=m.meta.get("step_turns", 0.4),
                     completed=m.stable, abort_reason=m.meta.get("abort_reason"), meta=m.meta)
-                for m, (q1, q2), yi in zip(measurements, joints, ys)]
+                for m, q1, q2, y in zip(measurements, np.split(Q1, cuts), np.split(Q2, cuts), np.split(Y, cuts))]
 
 
 def _prepare_closed_loop(dev: Device, vel_limit: float, watchdog: float | None) -> None:
@@ -860,13 +859,14 @@ def _batch_points(dev: Device, gains, out: dict):
     t = out["t"] - out["t"][0]
     period = out["t"][1] - out["t"][0]
     points = []
-    for i, g in enumerate(np.atleast_2d(gains)):
-        completed = out["abort_tick"][i] < 0 and not np.any(out["axis_error"][i])
+    faulted = np.any(out["axis_error"], axis=1)
+    for i, g in enumerate(np.atleast_2d(gains).tolist()):
+        completed = out["abort_tick"][i] < 0 and not faulted[i]
         reason = _abort_reason_of(out["abort_reason"][i])
         if reason is None and not completed:
             reason = f"axis error 0x{int(out['axis_error'][i].max()):x} (firmware fault)"
         n = len(t) if completed else max(2, int(out["abort_tick"][i] * dev.sim.twin.dt / max(period, 1e-12)) + 1)
-        points.append((tuple(float(x) for x in g), min(n, len(t)), bool(completed), reason))
+        points.append((tuple(g), min(n, len(t)), bool(completed), reason))
     return Q1, Q2, t, {**dev.describe(), "sample_rate_hz": 1.0 / period}, points
 
 

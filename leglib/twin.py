@@ -1577,7 +1577,8 @@ class Twin:
         n_rec = (n_ticks + every - 1) // every
         rec = np.zeros((B, n_rec, 5))
         self.run(st, ticks=n_ticks, record_every=every, record=rec)
-        return {"t": rec[0, :, 0].copy(), "counts": rec[:, :, 1:3].copy(), "iq": rec[:, :, 3:5].copy(),
+        # views of the record (no copies of its megabytes): nothing else holds it
+        return {"t": rec[0, :, 0], "counts": rec[:, :, 1:3], "iq": rec[:, :, 3:5],
                 "abort_tick": np.where(st.ABORT[:, 1] != ABORT_NONE, st.ABORT[:, 0], -1),
                 "abort_reason": st.ABORT[:, 1].copy(), "axis_error": st.AI[:, :, I_AXIS_ERR].copy(),
                 "final": st}
