@@ -258,8 +258,8 @@ class GainMap:
         self.wn = np.full(shape, np.nan)
         self.status = np.full(shape, STATUS_MISSING, dtype=object)
         self.points = points
-        for g, p in zip(G, points):
-            i = tuple(int(np.searchsorted(ax, v)) for ax, v in zip(self.axes, g))
+        cells = zip(*(np.searchsorted(ax, G[:, k]).tolist() for k, ax in enumerate(self.axes)))
+        for i, p in zip(cells, points):
             self.status[i] = p.status
             if p.status == STATUS_OK:
                 self.zeta[i], self.wn[i] = p.zeta, p.wn
@@ -338,11 +338,9 @@ class GainMap:
         stable = (self.status != STATUS_UNSTABLE).astype(float)
         axes = self.axes
         fine_axes = [np.geomspace(a[0], a[-1], n) if len(a) > 1 else a.copy() for a, n in zip(axes, points_per_axis)]
-        mesh = np.stack(np.meshgrid(*fine_axes, indexing="ij"), axis=-1)
         active = [i for i, a in enumerate(axes) if len(a) > 1]
         # log coordinates: zeta and wn of a cascade scale like powers of the gains
         sub_axes = [np.log(axes[i]) for i in active]
-        sub_mesh = np.log(mesh[..., active])
 
         # the fine grid is a tensor product, and so are scipy's RegularGridInterpolator's
         # cubic (not-a-knot splines per axis) and linear interpolants: one small matrix per
@@ -356,22 +354,23 @@ class GainMap:
             f = field.reshape([len(a) for a in sub_axes])
             return _tensor_interp(f, mats[method if cubic_ok else "linear"])
 
-        z = np.exp(interp(np.log(zeta), "cubic"))
-        w = np.exp(interp(np.log(wn), "cubic"))
-        stab = interp(stable, "linear")
+        full = tuple(len(a) for a in fine_axes)   # an axis of one gain stays, of length 1
+        z = np.exp(interp(np.log(zeta), "cubic")).reshape(full)
+        w = np.exp(interp(np.log(wn), "cubic")).reshape(full)
+        stab = interp(stable, "linear").reshape(full)
         # supported: every corner of the enclosing grid cell measured and identified
         ok = (self.status == STATUS_OK).reshape([len(a) for a in sub_axes])
-        corner_ok = np.ones(sub_mesh.shape[:-1], dtype=bool)
-        lower = []
-        for k, a in enumerate(sub_axes):
-            i = np.clip(np.searchsorted(a, sub_mesh[..., k], side="right") - 1, 0, max(len(a) - 2, 0))
-            lower.append(i)
+        corner_ok = np.ones(full, dtype=bool)
+        lower = []   # per active axis the cell below each fine point, along that axis
+        for k, (a, x) in enumerate(zip(sub_axes, sub_fine)):
+            i = np.clip(np.searchsorted(a, x, side="right") - 1, 0, max(len(a) - 2, 0))
+            lower.append(i.reshape([len(x) if j == active[k] else 1 for j in range(len(full))]))
         for corner in np.ndindex(*(2,) * len(sub_axes)):
             idx = tuple(np.minimum(lo + c, len(a) - 1) for lo, c, a in zip(lower, corner, sub_axes))
             corner_ok &= ok[idx]
         # where cubic and linear interpolation disagree, the grid is too coarse to tell
-        zl = np.exp(interp(np.log(zeta), "linear"))
-        wl = np.exp(interp(np.log(wn), "linear"))
+        zl = np.exp(interp(np.log(zeta), "linear")).reshape(full)
+        wl = np.exp(interp(np.log(wn), "linear")).reshape(full)
         trusted = (np.abs(z - zl) <= AGREEMENT * np.abs(zl)) & (np.abs(w - wl) <= AGREEMENT * np.abs(wl))
         valid = (stab > 1 - 1e-9) & corner_ok & trusted & (z > 0) & (w > 0) & np.isfinite(z) & np.isfinite(w)
         self._fine = {"key": key, "axes": fine_axes, "zeta": z, "fn": w / (2 * math.pi), "valid": valid}
@@ -380,9 +379,12 @@ class GainMap:
     def achievable(self, **kw) -> Achievable:
         """Every valid fine-grid point: the (zeta, fn) region of the thesis's Fig. 6.12."""
         f = self.fine(**kw)
-        mesh = np.stack(np.meshgrid(*f["axes"], indexing="ij"), axis=-1)
         v = f["valid"]
-        return Achievable(gains=mesh[v], zeta=f["zeta"][v], fn=f["fn"][v])
+        if v.shape == tuple(len(a) for a in f["axes"]):   # the valid points' gains, axis by axis
+            gains = np.column_stack([a[i] for a, i in zip(f["axes"], np.nonzero(v))])
+        else:
+            gains = np.stack(np.meshgrid(*f["axes"], indexing="ij"), axis=-1)[v]
+        return Achievable(gains=gains, zeta=f["zeta"][v], fn=f["fn"][v])
 
     # -- inverse -------------------------------------------------------------------------
     def _tree(self):

@@ -81,6 +81,22 @@ def test_inverse_recovers_gains_with_the_requested_dynamics(synthetic):
         assert not (gains[1] < 0.04 and gains[2] > 0.06)
 
 
+@pytest.mark.parametrize("fixed", [0, 1, 2])
+def test_a_map_with_one_value_of_a_gain_is_a_plane_and_inverts(synthetic, fixed):
+    """A sweep that holds one gain fixed (one value on that axis): the map is a plane of
+    the other two, its region and inverse work on it and keep the fixed gain."""
+    value = synthetic.axes[fixed][1]
+    plane = GM.GainMap([p for p in synthetic.points if p.gains[fixed] == value])
+    assert plane.zeta.shape[fixed] == 1 and plane.fine()["valid"].shape[fixed] == 1
+    a = plane.achievable()
+    assert a.zeta.size > 20 and np.all(a.gains[:, fixed] == value)
+    for z, fn in GM.spread_targets(a, 4):
+        gains = plane.gains_for(z, fn)
+        zt, wt = _analytic(*gains)
+        assert gains[fixed] == value
+        assert zt == pytest.approx(z, rel=0.10) and wt / (2 * math.pi) == pytest.approx(fn, rel=0.10)
+
+
 def test_inverse_rejects_nonsense(synthetic):
     with pytest.raises(ValueError, match="positive"):
         synthetic.gains_for(-0.1, 5.0)
