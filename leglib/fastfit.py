@@ -395,22 +395,29 @@ def _peaks(x, min_prominence):
     out = np.empty(nc, dtype=np.int64)
     no = 0
     for c in range(nc):
+        # prominent when on both sides the signal falls by min_prominence before it rises
+        # above the peak: each side's scan stops as soon as it knows (the same peaks as
+        # scanning to the higher point, in time linear in the signal's length)
+        # (x[pk] - min(side) >= p holds exactly when x[pk] - x[j] >= p for some j of
+        # the side: subtraction rounds monotonically)
         pk = cand[c]
-        left = x[pk]
+        top = x[pk]
+        left = False
         j = pk
-        while j >= 0 and x[j] <= x[pk]:
-            if x[j] < left:
-                left = x[j]
+        while j >= 0 and x[j] <= top:
+            if top - x[j] >= min_prominence:
+                left = True
+                break
             j -= 1
-        right = x[pk]
+        if not left:
+            continue
         j = pk
-        while j <= n - 1 and x[j] <= x[pk]:
-            if x[j] < right:
-                right = x[j]
+        while j <= n - 1 and x[j] <= top:
+            if top - x[j] >= min_prominence:
+                out[no] = pk
+                no += 1
+                break
             j += 1
-        if x[pk] - max(left, right) >= min_prominence:
-            out[no] = pk
-            no += 1
     return out[:no]
 
 
