@@ -673,7 +673,8 @@ def _check_fields(side: Path, meta, prefix: str = "") -> None:
     """The types of a sidecar's optional fields (of a measurement, or of one measurement
     of a batch: ``prefix`` names where in the sidecar)."""
     if not isinstance(meta, dict):
-        raise MeasurementError(f"{side}: {prefix or 'sidecar'} must be a JSON object, got {type(meta).__name__}")
+        what = f"field {prefix.rstrip('.')}" if prefix else "sidecar"
+        raise MeasurementError(f"{side}: {what} must be a JSON object, got {type(meta).__name__}")
     if "columns" in meta and meta["columns"] != COLUMNS:
         raise _bad_field(side, meta, "columns", repr(COLUMNS), prefix)
     if "angles" in meta and meta["angles"] not in ("absolute", "relative"):

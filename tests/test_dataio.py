@@ -390,6 +390,8 @@ def test_a_batch_refuses_bad_measurements_naming_which(tmp_path):
      r"field points\[2\]\.'completed' must be true or false"),
     (lambda p: _edit_sidecar(p, lambda m: m.update(format=2)), "field 'format' must be 3"),
     (lambda p: _edit_sidecar(p, lambda m: m.update(points=[])), "field 'points' must be a non-empty list"),
+    (lambda p: _edit_sidecar(p, lambda m: m["points"].__setitem__(1, [20, 0.01, 0.02])),
+     r"field points\[1\] must be a JSON object, got list"),
 ])
 def test_a_damaged_batch_is_refused_naming_file_and_field(tmp_path, damage, message):
     p, _ = _batch(tmp_path)
