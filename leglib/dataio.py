@@ -740,6 +740,16 @@ def _check_sidecar(side: Path, meta, csv: Path, raw: bytes, n: int, name_gains, 
     return gains
 
 
+def _sidecar_json(side: Path, raw: bytes):
+    """The JSON value of a sidecar's bytes; MeasurementError naming the file and line."""
+    try:
+        return json.loads(_decode(side, raw, "sidecar"))
+    except json.JSONDecodeError as exc:
+        raise MeasurementError(f"{side}:{exc.lineno}: sidecar is not valid JSON: {exc.msg}") from None
+    except RecursionError:
+        raise MeasurementError(f"{side}: sidecar is nested too deeply") from None
+
+
 @dataclass
 class Measurement:
     """A measurement read back: ``t`` [s], ``angle1``, ``angle2`` [deg] as in the file,
@@ -793,12 +803,7 @@ def read_measurement(path: str | Path) -> Measurement:
     side = sidecar_path(path)
     side_raw = _read_regular(side, MAX_SIDECAR_BYTES, "sidecar", missing_ok=True)
     if side_raw is not None:
-        try:
-            meta = json.loads(_decode(side, side_raw, "sidecar"))
-        except json.JSONDecodeError as exc:
-            raise MeasurementError(f"{side}:{exc.lineno}: sidecar is not valid JSON: {exc.msg}") from None
-        except RecursionError:
-            raise MeasurementError(f"{side}: sidecar is nested too deeply") from None
+        meta = _sidecar_json(side, side_raw)
         gains = _check_sidecar(side, meta, path, raw, len(data), name_gains, exact_name=uid is not None)
         gains = gains if gains is not None else name_gains
     else:
@@ -846,12 +851,7 @@ def read_batch(path: str | Path) -> list[Measurement]:
     if side_raw is None:
         raise MeasurementError(f"{path}: sidecar {side.name} missing: a batch without its sidecar is "
                                f"incomplete or damaged (re-measure it)")
-    try:
-        meta = json.loads(_decode(side, side_raw, "sidecar"))
-    except json.JSONDecodeError as exc:
-        raise MeasurementError(f"{side}:{exc.lineno}: sidecar is not valid JSON: {exc.msg}") from None
-    except RecursionError:
-        raise MeasurementError(f"{side}: sidecar is nested too deeply") from None
+    meta = _sidecar_json(side, side_raw)
     _check_fields(side, meta)
     if meta.get("format") != BATCH_FORMAT:
         raise MeasurementError(f"{side}: field 'format' must be {BATCH_FORMAT} (a batch), got "

@@ -55,20 +55,24 @@ def test_files_follow_the_umask(tmp_path):
     assert p.stat().st_mode & 0o777 == 0o644 == p.with_suffix(".json").stat().st_mode & 0o777
 
 
-def test_interrupt_between_sidecar_and_csv_is_uncommitted(tmp_path, monkeypatch):
+def _interrupted_at_the_csv(monkeypatch, write, then=lambda path: None):
+    """Run ``write`` with its CSV's commit interrupted (KeyboardInterrupt), after ``then(path)``."""
     real = dataio.write_bytes_atomic
-    calls = []
 
     def dying(path, data, overwrite=False):
-        calls.append(path)
         if str(path).endswith(".csv"):
+            then(path)
             raise KeyboardInterrupt
         return real(path, data, overwrite)
 
     monkeypatch.setattr(dataio, "write_bytes_atomic", dying)
     with pytest.raises(KeyboardInterrupt):
-        _write(tmp_path)
+        write()
     monkeypatch.undo()
+
+
+def test_interrupt_between_sidecar_and_csv_is_uncommitted(tmp_path, monkeypatch):
+    _interrupted_at_the_csv(monkeypatch, lambda: _write(tmp_path))
     assert dataio.list_measurements(tmp_path) == []          # nothing committed
     left = dataio.find_uncommitted(tmp_path)
     assert [p.suffix for p in left] == [".json"]
@@ -416,20 +420,12 @@ def test_time_must_increase_within_each_measurement_of_a_batch(tmp_path):
 
 
 def test_an_unfinished_batch_is_uncommitted_and_claimed_while_written(tmp_path, monkeypatch):
-    real = dataio.write_bytes_atomic
     held = []
 
-    def dying(path, data, overwrite=False):
-        if str(path).endswith(".csv"):
-            uid = dataio.uncommitted_claim_key(path.with_suffix(".json"))
-            held.append(dataio.claim(tmp_path, uid))   # the writer holds its batch's name
-            raise KeyboardInterrupt
-        return real(path, data, overwrite)
+    def try_to_claim(path):   # the writer holds its batch's name
+        held.append(dataio.claim(tmp_path, dataio.uncommitted_claim_key(path.with_suffix(".json"))))
 
-    monkeypatch.setattr(dataio, "write_bytes_atomic", dying)
-    with pytest.raises(KeyboardInterrupt):
-        _batch(tmp_path)
-    monkeypatch.undo()
+    _interrupted_at_the_csv(monkeypatch, lambda: _batch(tmp_path), try_to_claim)
     assert held == [None]   # claimed by the writer while it wrote
     assert dataio.list_measurements(tmp_path) == []
     (left,) = dataio.find_uncommitted(tmp_path)
