@@ -30,6 +30,7 @@ Parsing (:func:`parse3`)
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 from numba import get_num_threads, njit, prange
@@ -97,13 +98,32 @@ def _format_parts(data, out, rows, ends):
 PARALLEL_BYTES = 1 << 20   # below about this much text one thread formats or parses it
 
 
-def format_fixed6_array(data: np.ndarray) -> np.ndarray | None:
+_SCRATCH = threading.local()   # per thread: a text buffer kept for the next table
+SCRATCH_MAX_BYTES = 64 << 20   # larger buffers are not kept
+
+
+def _scratch(nbytes: int) -> np.ndarray:
+    buf = getattr(_SCRATCH, "buf", None)
+    if buf is None or buf.size < nbytes:
+        buf = np.empty(nbytes, np.uint8)
+        if nbytes <= SCRATCH_MAX_BYTES:
+            _SCRATCH.buf = buf
+    return buf
+
+
+def format_fixed6_array(data: np.ndarray, reuse: bool = False) -> np.ndarray | None:
     """:func:`format_fixed6` as a uint8 array (no copy into bytes; hashlib and os.write
-    take it as it is); large tables are formatted on the cores present."""
+    take it as it is); large tables are formatted on the cores present.
+
+    ``reuse=True`` writes into this thread's scratch buffer, kept from call to call: the
+    array is then valid only until the next such call (for text that is hashed and
+    written at once). Fresh memory is what a large table's text costs most where the
+    system hands out pages slowly (in a VM about 6 us per 4 KiB page, 14 ms for a sweep)."""
     data = np.ascontiguousarray(data, dtype=np.float64)
     if data.ndim != 2:
         return None
-    out = np.empty(data.size * FIXED6_MAX_CHARS, np.uint8)
+    size = data.size * FIXED6_MAX_CHARS
+    out = _scratch(size) if reuse else np.empty(size, np.uint8)
     n = data.shape[0]
     parts = min(get_num_threads(), max(1, data.size * 10 // PARALLEL_BYTES))
     if parts == 1:
@@ -115,7 +135,8 @@ def format_fixed6_array(data: np.ndarray) -> np.ndarray | None:
         if np.any(ends < 0):
             return None
         k = 0
-        for p in range(parts):   # close up (numpy copies overlapping ranges correctly)
+        for p in range(parts):   # close up (numpy copies overlaps right; text of less than half
+            # the widest rows leaves no overlap, so no temporary copy)
             start = rows[p] * data.shape[1] * FIXED6_MAX_CHARS
             out[k:k + ends[p] - start] = out[start:ends[p]]
             k += ends[p] - start
@@ -259,9 +280,9 @@ def _parse_parts_impl(b, bounds, max_line, angle_limit, increasing):
     of each part, the rows each gave or -1). (No array expression here: in a parallel
     function numba would share it out among the threads.)"""
     parts = bounds.size - 1
-    lines = np.empty(parts, np.int64)
+    lines = np.empty(parts, np.int64)   # at most this many rows per part
     for p in prange(parts):
-        m = 1
+        m = 1 if p == parts - 1 else 0   # every part but the last ends with its newline
         for i in range(bounds[p], bounds[p + 1]):
             m += b[i] == 10
         lines[p] = m
@@ -275,7 +296,17 @@ def _parse_parts_impl(b, bounds, max_line, angle_limit, increasing):
     return out, first, got
 
 
-def parse3(raw: bytes, max_line: int, angle_limit: float = math.inf, increasing: bool = False) -> np.ndarray | None:
+def _find_newline(b: np.ndarray, start: int) -> int:
+    """The index of the first newline of ``b`` from ``start``, or -1."""
+    while start < b.size:
+        hits = np.flatnonzero(b[start:start + 4096] == 10)
+        if hits.size:
+            return start + int(hits[0])
+        start += 4096
+    return -1
+
+
+def parse3(raw, max_line: int, angle_limit: float = math.inf, increasing: bool = False) -> np.ndarray | None:
     """The rows of a three-column CSV buffer as an (n, 3) array, bit for bit as
     ``float()`` reads them; None when the careful parser must decide (see module notes).
 
@@ -285,7 +316,7 @@ def parse3(raw: bytes, max_line: int, angle_limit: float = math.inf, increasing:
     parts = min(get_num_threads(), max(1, b.size // PARALLEL_BYTES))
     bounds = [0]
     for p in range(1, parts):   # each part whole lines: it starts after a newline
-        cut = raw.find(b"\n", max(bounds[-1], b.size * p // parts))
+        cut = _find_newline(b, max(bounds[-1], b.size * p // parts))
         if cut < 0:
             break
         bounds.append(cut + 1)
@@ -296,10 +327,11 @@ def parse3(raw: bytes, max_line: int, angle_limit: float = math.inf, increasing:
     if np.any(got < 0):
         return None
     k = 0
-    for p in range(got.size):   # close up (numpy copies overlapping ranges correctly)
+    for p in range(got.size):   # close up the gaps of blank lines (numpy copies overlaps right)
         if got[p]:
             if increasing and k and not out[first[p], 0] > out[k - 1, 0]:   # across the seam
                 return None
-            out[k:k + got[p]] = out[first[p]:first[p] + got[p]]
+            if k != first[p]:
+                out[k:k + got[p]] = out[first[p]:first[p] + got[p]]
             k += got[p]
     return None if k == 0 else out[:k]

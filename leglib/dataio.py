@@ -85,6 +85,7 @@ import secrets
 import stat
 import subprocess
 import sys
+import threading
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -317,13 +318,14 @@ def write_bytes_atomic(path: str | Path, data: bytes, overwrite: bool = False) -
 
 
 def _csv_bytes(data: np.ndarray):
-    """Rows of ``data`` as ``"%.6f,%.6f,...\\n"`` ASCII (bytes, or a uint8 array of them):
-    compiled, or (for the values it cannot format exactly: ties, huge, non-finite) one
-    Python format of the whole table."""
+    """Rows of ``data`` as ``"%.6f,%.6f,...\\n"`` ASCII (bytes, or a uint8 array of them
+    valid until the next call in this thread: hash and write it at once): compiled, or
+    (for the values it cannot format exactly: ties, huge, non-finite) one Python format of
+    the whole table."""
     from . import csvcodec  # numba: imported on first use
 
     data = np.atleast_2d(np.asarray(data, dtype=float))
-    body = csvcodec.format_fixed6_array(data)
+    body = csvcodec.format_fixed6_array(data, reuse=True)
     if body is None:
         row = ",".join(["%.6f"] * data.shape[1]) + "\n"
         body = ((row * data.shape[0]) % tuple(data.ravel().tolist())).encode("ascii")
@@ -435,7 +437,12 @@ def write_batch(out_dir: str | Path, series, meta: dict, when: _dt.datetime | No
     data = np.empty((sum(p["samples"] for p in points), 3))
     for j in range(3):
         np.concatenate([c[j] for c in columns], out=data[:, j])
-    if not (np.isfinite(data).all() and np.abs(data[:, 1:]).max() <= ANGLE_LIMIT_DEG):
+    # everything within the angle limit (times too, as in a sweep) is valid; min and max
+    # are NaN where a NaN is; only otherwise the columns are looked at one by one (no
+    # temporary arrays in the common case: fresh pages cost)
+    lo, hi = data.min(), data.max()
+    if not (-ANGLE_LIMIT_DEG <= lo and hi <= ANGLE_LIMIT_DEG) and not (
+            np.isfinite(data[:, 0]).all() and np.abs(data[:, 1:]).max() <= ANGLE_LIMIT_DEG):
         good = np.isfinite(data).all(axis=1) & (np.abs(data[:, 1:]) <= ANGLE_LIMIT_DEG).all(axis=1)
         k = int(np.searchsorted(np.cumsum([p["samples"] for p in points]), np.argmin(good), side="right"))
         raise ValueError(f"write_batch: measurement {k}: values must be finite and angles within "
@@ -514,10 +521,32 @@ def write_table(path: str | Path, data) -> Path:
 
 # -- reading -----------------------------------------------------------------------------
 
-def _read_regular(path: Path, limit: int, what: str, missing_ok: bool = False) -> bytes | None:
+_SCRATCH = threading.local()     # per thread: a read buffer kept for the next large file
+SCRATCH_MAX_BYTES = 64 << 20
+
+
+def _read_into_scratch(fd: int, size: int):
+    """The ``size`` bytes of the open regular file ``fd`` in this thread's scratch buffer
+    (a memoryview of it, valid until the next call), or None when the file reads otherwise
+    than its size said (the caller reads it the careful way)."""
+    buf = getattr(_SCRATCH, "buf", None)
+    if buf is None or len(buf) < size + 1:
+        buf = _SCRATCH.buf = bytearray(size + 1)
+    view = memoryview(buf)[:size + 1]
+    n = os.readv(fd, [view])
+    if n != size:
+        os.lseek(fd, 0, os.SEEK_SET)
+        return None
+    return view[:n]
+
+
+def _read_regular(path: Path, limit: int, what: str, missing_ok: bool = False, scratch: bool = False):
     """The bytes of ``path`` if it is a regular file (symlinks followed) of at most ``limit``
     bytes; MeasurementError otherwise. Never blocks on a FIFO or reads a device.
-    ``missing_ok``: None when no such name exists (a dangling symlink is an error)."""
+    ``missing_ok``: None when no such name exists (a dangling symlink is an error).
+    ``scratch``: a large file is read into this thread's scratch buffer and a memoryview of
+    it returned, valid until the next such read (fresh memory is what reading a sweep's
+    batch costs most where the system hands out pages slowly)."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
     except FileNotFoundError:
@@ -538,6 +567,10 @@ def _read_regular(path: Path, limit: int, what: str, missing_ok: bool = False) -
         if st.st_size > limit:
             raise MeasurementError(f"{path}: {what} is {st.st_size} bytes, more than the {limit} "
                                    f"a measurement may have")
+        if scratch and st.st_size <= SCRATCH_MAX_BYTES:
+            got = _read_into_scratch(fd, st.st_size)
+            if got is not None:
+                return got
         # one read when the size is as stat said: a regular file reads short only at its end
         first = os.read(fd, st.st_size + 1)
         if len(first) <= st.st_size:
@@ -560,7 +593,8 @@ def _read_regular(path: Path, limit: int, what: str, missing_ok: bool = False) -
         os.close(fd)
 
 
-def _decode(path: Path, raw: bytes, what: str) -> str:
+def _decode(path: Path, raw, what: str) -> str:
+    raw = raw if isinstance(raw, bytes) else bytes(raw)
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -844,7 +878,7 @@ def read_batch(path: str | Path) -> list[Measurement]:
     path = Path(path)
     if not is_batch_name(path):
         raise MeasurementError(f"{path}: not a batch file name (expected YYYYmmdd_HHMMSS_lg<12 hex>_batch.csv)")
-    raw = _read_regular(path, MAX_BATCH_CSV_BYTES, "batch file")
+    raw = _read_regular(path, MAX_BATCH_CSV_BYTES, "batch file", scratch=True)   # (not kept)
     data = _parse_csv(path, raw, "batch file", 3, "(time, angle1, angle2)", angle_columns=(1, 2))
     side = sidecar_path(path)
     side_raw = _read_regular(side, MAX_BATCH_SIDECAR_BYTES, "sidecar", missing_ok=True)
@@ -876,19 +910,23 @@ def read_batch(path: str | Path) -> list[Measurement]:
     if total != len(data):
         raise MeasurementError(f"{side}: its measurements' 'samples' add up to {total}, but {path.name} "
                                f"has {len(data)} rows")
+    # time increases within each measurement (one pass: a step back is allowed only where
+    # the next measurement begins)
+    ends = np.cumsum([pm["samples"] for pm in points])
+    rises = np.diff(data[:, 0]) > 0
+    rises[ends[:-1] - 1] = True
+    if not rises.all():
+        row = 1 + int(np.argmin(rises))
+        k = int(np.searchsorted(ends, row, side="right"))
+        raise MeasurementError(f"{path}:{_row_line(path, raw, row)}: time {data[row, 0]} does not increase "
+                               f"(previous {data[row - 1, 0]}) within measurement {k + 1} of the batch")
     common = {k: v for k, v in meta.items() if k not in ("points", "samples", "csv_sha256")}
     out, start = [], 0
     for k, pm in enumerate(points):
         n = pm["samples"]
-        t = data[start:start + n, 0]
-        d = np.diff(t)
-        if not np.all(d > 0):
-            row = start + 1 + int(np.argmin(d > 0))
-            line = _row_line(path, raw, row)
-            raise MeasurementError(f"{path}:{line}: time {data[row, 0]} does not increase (previous "
-                                   f"{data[row - 1, 0]}) within measurement {k + 1} of the batch")
-        out.append(Measurement(path=path, t=t, angle1=data[start:start + n, 1], angle2=data[start:start + n, 2],
-                               gains=tuple(float(x) for x in pm["gains"]), meta={**common, **pm}, point=k))
+        out.append(Measurement(path=path, t=data[start:start + n, 0], angle1=data[start:start + n, 1],
+                               angle2=data[start:start + n, 2], gains=tuple(float(x) for x in pm["gains"]),
+                               meta={**common, **pm}, point=k))
         start += n
     return out
 

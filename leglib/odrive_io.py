@@ -882,7 +882,7 @@ def _write_batch(dev: Device, gains, out: dict, step: float, out_dir: Path) -> t
     """A twin batch as one batch file (:func:`leglib.dataio.write_batch`), with the fields
     :meth:`StepResponse.write` gives a point's own file; (its path, the unstable points)."""
     Q1, Q2, t, meta, points = _batch_points(dev, gains, out)
-    D1, D2 = np.degrees(Q1), np.degrees(Q2)
+    D1, D2 = np.degrees(Q1, out=Q1), np.degrees(Q2, out=Q2)   # (in place: fewer fresh pages)
     series = [(t[:n], D1[i, :n], D2[i, :n], g, {"completed": completed, "abort_reason": reason})
               for i, (g, n, completed, reason) in enumerate(points)]
     path = dataio.write_batch(out_dir, series, {**_STEP_FIELDS, "step_turns": step, **meta})

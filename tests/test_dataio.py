@@ -365,6 +365,18 @@ def test_a_batch_round_trips_its_measurements_in_order(tmp_path):
     assert dataio.read_file(single)[0].point is None
 
 
+def test_batches_read_one_after_another_keep_their_numbers(tmp_path):
+    """A batch is read through a buffer reused from file to file: what was read stays."""
+    first, _ = _batch(tmp_path / "a")
+    second, _ = _batch(tmp_path / "b", sizes=(3, 9, 2))
+    a = dataio.read_file(first)
+    kept = [m.angle1.copy() for m in a]
+    b = dataio.read_file(second)
+    assert [m.t.size for m in b] == [3, 9, 2]
+    for m, k in zip(a, kept):
+        np.testing.assert_array_equal(m.angle1, k)
+
+
 def test_a_batch_refuses_bad_measurements_naming_which(tmp_path):
     t = np.arange(5) * 0.002
     good = (t, 267 + t, 273 - t, (20, 0.01, 0.02), {})
