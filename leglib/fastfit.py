@@ -601,18 +601,27 @@ def _shapes_packed(t, y, bounds, out):
         _shape_row(t[bounds[k]:bounds[k + 1]], y[bounds[k]:bounds[k + 1]], out[k])
 
 
-def shape_numbers(ts, ys) -> np.ndarray:
-    """Per response (equal-length 1-D t and y): start, final value, the peak beyond the
-    final value in the step's direction, median sample spacing [s] -- what
-    :func:`leglib.gainmap.step_shape_problem` judges, for many responses in one call."""
+def _pack(ts, ys):
+    """(t, y, bounds): the responses one after another, response k at bounds[k]:bounds[k + 1]."""
     sizes = np.fromiter((np.size(t) for t in ts), dtype=np.int64, count=len(ts))
     bounds = np.zeros(sizes.size + 1, dtype=np.int64)
     np.cumsum(sizes, out=bounds[1:])
     t = np.concatenate([np.asarray(x, dtype=float).ravel() for x in ts]) if len(ts) else np.empty(0)
     y = np.concatenate([np.asarray(x, dtype=float).ravel() for x in ys]) if len(ys) else np.empty(0)
-    out = np.empty((sizes.size, 4))
+    return t, y, bounds
+
+
+def _shapes(t, y, bounds) -> np.ndarray:
+    out = np.empty((bounds.size - 1, 4))
     _shapes_packed(t, y, bounds, out)
     return out
+
+
+def shape_numbers(ts, ys) -> np.ndarray:
+    """Per response (equal-length 1-D t and y): start, final value, the peak beyond the
+    final value in the step's direction, median sample spacing [s] -- what
+    :func:`leglib.gainmap.step_shape_problem` judges, for many responses in one call."""
+    return _shapes(*_pack(ts, ys))
 
 
 # below this many responses one thread fits them (the thread pool costs more than it gives)
@@ -638,14 +647,14 @@ def fit_packed(ts, ys):
         wn [rad/s], gain, offset, delay [s], r2, n_peaks, step, span, noise, n, cost,
         starts and iterations used)
     """
-    sizes = np.fromiter((np.size(t) for t in ts), dtype=np.int64, count=len(ts))
-    bounds = np.zeros(sizes.size + 1, dtype=np.int64)
-    np.cumsum(sizes, out=bounds[1:])
-    t = np.concatenate([np.asarray(x, dtype=float) for x in ts]) if len(ts) else np.empty(0)
-    y = np.concatenate([np.asarray(x, dtype=float) for x in ys]) if len(ys) else np.empty(0)
-    out = np.empty((sizes.size, N_OUT))
-    status = np.empty(sizes.size, dtype=np.int64)
-    if sizes.size < PARALLEL_FROM:
+    return _fit(*_pack(ts, ys))
+
+
+def _fit(t, y, bounds):
+    k = bounds.size - 1
+    out = np.empty((k, N_OUT))
+    status = np.empty(k, dtype=np.int64)
+    if k < PARALLEL_FROM:
         _fit_packed(t, y, bounds, out, status)
     else:
         # responses handed out a few at a time: their fits differ in cost
@@ -681,18 +690,21 @@ def _error(code, row):
     raise AssertionError(code)
 
 
-def identify_batch(ts, ys) -> list:
+def identify_batch(ts, ys, shapes: bool = False):
     """Second-order identification of many step responses in one compiled call.
 
     Parameters
     ----------
     ts, ys : sequences of array-likes, times [s] (strictly increasing) and responses
+    shapes : also return each response's :func:`shape_numbers` row (NaN for a response
+        refused before fitting), from the same packed copy of the data
 
     Returns
     -------
     list, per response, of a :class:`leglib.identify.SecondOrderFit` (method "fit") or
     the :class:`leglib.identify.IdentificationError` that
-    :func:`leglib.identify.second_order` raises for it
+    :func:`leglib.identify.second_order` raises for it; with ``shapes``, the pair
+    (that list, the (K, 4) shape numbers)
     """
     from .identify import IdentificationError, SecondOrderFit
 
@@ -705,7 +717,8 @@ def identify_batch(ts, ys) -> list:
         if t.ndim != 1 or y.shape != t.shape:
             bad[k] = IdentificationError(f"t and y must be 1-D arrays of equal length, got {t.shape} and {y.shape}")
     keep = [k for k in range(len(ts)) if k not in bad]
-    status, out = fit_packed([ts[k] for k in keep], [ys[k] for k in keep])
+    packed = _pack([ts[k] for k in keep], [ys[k] for k in keep])
+    status, out = _fit(*packed)
     results = [None] * len(ts)
     for k, e in bad.items():
         results[k] = e
@@ -717,4 +730,8 @@ def identify_batch(ts, ys) -> list:
         results[k] = SecondOrderFit(float(row[C_ZETA]), float(row[C_WN]), float(row[C_GAIN]),
                                     float(row[C_OFFSET]), float(row[C_DELAY]), "fit", float(row[C_R2]),
                                     n_peaks, n_peaks < 2)
-    return results
+    if not shapes:
+        return results
+    numbers = np.full((len(ts), 4), np.nan)
+    numbers[keep] = _shapes(*packed)
+    return results, numbers

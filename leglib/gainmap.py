@@ -169,14 +169,14 @@ def identify_many(responses, method: str = "fit", workers: int | None = None) ->
     -------
     list of PointResult, in the order of ``responses``
     """
-    from .fastfit import identify_batch, shape_numbers
+    from .fastfit import identify_batch
 
     responses = list(responses)
     if method != "fit":
         return [identify_response(r, method) for r in responses]
     done = [r for r in responses if r.completed]
-    fits = iter(identify_batch([r.t for r in done], [r.y for r in done]))
-    shapes = iter(shape_numbers([r.t for r in done], [r.y for r in done]))
+    fits, shapes = identify_batch([r.t for r in done], [r.y for r in done], shapes=True)
+    fits, shapes = iter(fits), iter(shapes)
     # the same checks as one by one (gains, shape, fit quality), on the batch's numbers
     return [identify_response(r, method, fit=next(fits), shape=next(shapes)) if r.completed
             else identify_response(r, method) for r in responses]
