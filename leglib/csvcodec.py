@@ -98,16 +98,21 @@ def _format_parts(data, out, rows, ends):
 PARALLEL_BYTES = 1 << 20   # below about this much text one thread formats or parses it
 
 
-_SCRATCH = threading.local()   # per thread: a text buffer kept for the next table
+_SCRATCH = threading.local()   # per thread: byte buffers kept from call to call, by use
 SCRATCH_MAX_BYTES = 64 << 20   # larger buffers are not kept
 
 
-def _scratch(nbytes: int) -> np.ndarray:
-    buf = getattr(_SCRATCH, "buf", None)
+def scratch(use: str, nbytes: int) -> np.ndarray:
+    """This thread's uint8 buffer for ``use`` ("text", "read"), at least ``nbytes`` long,
+    kept for the next call (up to SCRATCH_MAX_BYTES): what it holds is valid only until
+    then. Fresh memory is what large text costs most where the system hands out pages
+    slowly (in a VM about 6 us per 4 KiB page: 14 ms for a sweep's 9 MB)."""
+    bufs = _SCRATCH.__dict__
+    buf = bufs.get(use)
     if buf is None or buf.size < nbytes:
         buf = np.empty(nbytes, np.uint8)
         if nbytes <= SCRATCH_MAX_BYTES:
-            _SCRATCH.buf = buf
+            bufs[use] = buf
     return buf
 
 
@@ -115,15 +120,14 @@ def format_fixed6_array(data: np.ndarray, reuse: bool = False) -> np.ndarray | N
     """:func:`format_fixed6` as a uint8 array (no copy into bytes; hashlib and os.write
     take it as it is); large tables are formatted on the cores present.
 
-    ``reuse=True`` writes into this thread's scratch buffer, kept from call to call: the
-    array is then valid only until the next such call (for text that is hashed and
-    written at once). Fresh memory is what a large table's text costs most where the
-    system hands out pages slowly (in a VM about 6 us per 4 KiB page, 14 ms for a sweep)."""
+    ``reuse=True`` writes into this thread's :func:`scratch` buffer for text: the array
+    is then valid only until the next such call (for text that is hashed and written at
+    once)."""
     data = np.ascontiguousarray(data, dtype=np.float64)
     if data.ndim != 2:
         return None
     size = data.size * FIXED6_MAX_CHARS
-    out = _scratch(size) if reuse else np.empty(size, np.uint8)
+    out = scratch("text", size) if reuse else np.empty(size, np.uint8)
     n = data.shape[0]
     parts = min(get_num_threads(), max(1, data.size * 10 // PARALLEL_BYTES))
     if parts == 1:

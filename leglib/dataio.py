@@ -85,7 +85,6 @@ import secrets
 import stat
 import subprocess
 import sys
-import threading
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -521,18 +520,14 @@ def write_table(path: str | Path, data) -> Path:
 
 # -- reading -----------------------------------------------------------------------------
 
-_SCRATCH = threading.local()     # per thread: a read buffer kept for the next large file
-SCRATCH_MAX_BYTES = 64 << 20
-
-
 def _read_into_scratch(fd: int, size: int):
     """The ``size`` bytes of the open regular file ``fd`` in this thread's scratch buffer
-    (a memoryview of it, valid until the next call), or None when the file reads otherwise
-    than its size said (the caller reads it the careful way)."""
-    buf = getattr(_SCRATCH, "buf", None)
-    if buf is None or len(buf) < size + 1:
-        buf = _SCRATCH.buf = bytearray(size + 1)
-    view = memoryview(buf)[:size + 1]
+    for reading (:func:`leglib.csvcodec.scratch`; a memoryview of it, valid until the next
+    call), or None when the file reads otherwise than its size said (the caller reads it
+    the careful way)."""
+    from . import csvcodec  # numba: imported on first use
+
+    view = memoryview(csvcodec.scratch("read", size + 1))[:size + 1]
     n = os.readv(fd, [view])
     if n != size:
         os.lseek(fd, 0, os.SEEK_SET)
@@ -567,7 +562,7 @@ def _read_regular(path: Path, limit: int, what: str, missing_ok: bool = False, s
         if st.st_size > limit:
             raise MeasurementError(f"{path}: {what} is {st.st_size} bytes, more than the {limit} "
                                    f"a measurement may have")
-        if scratch and st.st_size <= SCRATCH_MAX_BYTES:
+        if scratch:
             got = _read_into_scratch(fd, st.st_size)
             if got is not None:
                 return got
@@ -1060,7 +1055,10 @@ class Claim:
             self._fd = None
 
     def __del__(self):   # a claim nobody holds any more is released
-        self.release()
+        try:
+            self.release()
+        except Exception:  # noqa: BLE001 - never raise from a finalizer (e.g. at exit)
+            pass
 
 
 CLAIMS_FILE = ".claims.lock"
