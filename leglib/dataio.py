@@ -115,6 +115,7 @@ BATCH_RE = re.compile(r"^(?P<stamp>[0-9]{8}_[0-9]{6})_(?P<uid>lg[0-9a-f]{12})_ba
 _BATCH_SIDE_RE = re.compile(r"^[0-9]{8}_[0-9]{6}_lg[0-9a-f]{12}_batch\.json$", re.ASCII)
 MAX_BATCH_CSV_BYTES = 1 << 30     # a batch holds many measurements (the thesis grid: 9 MB)
 MAX_BATCH_SIDECAR_BYTES = 64 << 20
+BATCH_POINT_FIELDS = ("abort_reason", "completed", "gains", "samples")   # a batch's points hold these
 
 
 class MeasurementError(ValueError):
@@ -447,6 +448,7 @@ def write_batch(out_dir: str | Path, series, meta: dict, when: _dt.datetime | No
         raise ValueError(f"write_batch: measurement {k}: values must be finite and angles within "
                          f"+-{ANGLE_LIMIT_DEG} deg")
     body = _csv_bytes(data)
+    meta = json.loads(_COMPACT.encode(meta))   # plain JSON values (numpy scalars too); TypeError else
     sidecar = {**provenance(), **meta, "format": BATCH_FORMAT, "columns": COLUMNS, "angles": "absolute",
                "points": points, "samples": int(data.shape[0]),
                "csv_sha256": hashlib.sha256(body).hexdigest()}
@@ -539,9 +541,9 @@ def _read_regular(path: Path, limit: int, what: str, missing_ok: bool = False, s
     """The bytes of ``path`` if it is a regular file (symlinks followed) of at most ``limit``
     bytes; MeasurementError otherwise. Never blocks on a FIFO or reads a device.
     ``missing_ok``: None when no such name exists (a dangling symlink is an error).
-    ``scratch``: a large file is read into this thread's scratch buffer and a memoryview of
-    it returned, valid until the next such read (fresh memory is what reading a sweep's
-    batch costs most where the system hands out pages slowly)."""
+    ``scratch``: the file is read into this thread's scratch buffer and a memoryview of it
+    returned, valid until the next such read (fresh memory is what reading a sweep's batch
+    costs most where the system hands out pages slowly)."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
     except FileNotFoundError:
@@ -698,6 +700,11 @@ def _bad_field(side: Path, meta: dict, fieldname: str, expected: str, prefix: st
                             f"{_excerpt(json.dumps(meta[fieldname]))}")
 
 
+def _is_gains(g) -> bool:
+    """A sidecar's gains: a list of three finite numbers."""
+    return isinstance(g, list) and len(g) == 3 and all(_is_number(x) for x in g)
+
+
 def _check_fields(side: Path, meta, prefix: str = "") -> None:
     """The types of a sidecar's optional fields (of a measurement, or of one measurement
     of a batch: ``prefix`` names where in the sidecar)."""
@@ -753,7 +760,7 @@ def _check_sidecar(side: Path, meta, csv: Path, raw: bytes, n: int, name_gains, 
     gains = None
     if meta.get("gains") is not None:
         g = meta["gains"]
-        if not (isinstance(g, list) and len(g) == 3 and all(_is_number(x) for x in g)):
+        if not _is_gains(g):
             raise bad("gains", "a list of three finite numbers or null")
         gains = tuple(float(x) for x in g)
         if name_gains is not None:
@@ -882,9 +889,13 @@ def read_batch(path: str | Path) -> list[Measurement]:
                                f"incomplete or damaged (re-measure it)")
     meta = _sidecar_json(side, side_raw)
     _check_fields(side, meta)
-    if meta.get("format") != BATCH_FORMAT:
+    fmt = meta.get("format")
+    if type(fmt) is not int or fmt != BATCH_FORMAT:
         raise MeasurementError(f"{side}: field 'format' must be {BATCH_FORMAT} (a batch), got "
-                               f"{_excerpt(json.dumps(meta.get('format')))}")
+                               f"{_excerpt(json.dumps(fmt))}")
+    if meta.get("angles") != "absolute":
+        raise MeasurementError(f"{side}: field 'angles' must be 'absolute' (a batch holds absolute "
+                               f"joint angles), got {_excerpt(json.dumps(meta.get('angles')))}")
     _check_contents(side, meta, path, raw, len(data), required=True)
     points = meta.get("points")
     if not isinstance(points, list) or not points:
@@ -893,8 +904,15 @@ def read_batch(path: str | Path) -> list[Measurement]:
     for k, pm in enumerate(points):
         where = f"points[{k}]."
         _check_fields(side, pm, where)
+        other = sorted(set(pm) - set(BATCH_POINT_FIELDS))
+        if other:
+            raise MeasurementError(f"{side}: field {where}{other[0]!r} does not belong to one measurement "
+                                   f"of a batch (its fields: {', '.join(BATCH_POINT_FIELDS)})")
+        if not isinstance(pm.get("completed"), bool):
+            raise MeasurementError(f"{side}: field {where}'completed' must be true or false, got "
+                                   f"{_excerpt(json.dumps(pm.get('completed')))}")
         g = pm.get("gains")
-        if not (isinstance(g, list) and len(g) == 3 and all(_is_number(x) for x in g)):
+        if not _is_gains(g):
             raise MeasurementError(f"{side}: field {where}'gains' must be a list of three finite numbers, "
                                    f"got {_excerpt(json.dumps(g))}")
         n = pm.get("samples")
@@ -944,15 +962,16 @@ def _directory(directory: str | Path) -> Path:
 
 
 def list_measurements(directory: str | Path) -> list[Path]:
-    """Measurement files in ``directory``: CSVs of one measurement (``*_positions.csv``)
-    and batch files (``*_batch.csv``), not hidden, sorted by name.
+    """Measurement files in ``directory``: CSVs of one measurement (``*_positions.csv``,
+    not hidden) and batch files (named as :data:`BATCH_RE`: ``<stamp>_lg<12 hex>_batch.csv``),
+    sorted by name.
 
     MeasurementError if ``directory`` does not exist or is not a directory. Uncommitted
     writes (sidecars without a CSV, temporary files) are not listed (:func:`find_uncommitted`).
     """
     d = _directory(directory)
-    return sorted(p for pattern in ("*_positions.csv", "*_batch.csv") for p in d.glob(pattern)
-                  if not p.name.startswith("."))
+    return sorted([p for p in d.glob("*_positions.csv") if not p.name.startswith(".")]
+                  + [p for p in d.glob("*_batch.csv") if BATCH_RE.match(p.name)])
 
 
 @dataclass
@@ -1126,9 +1145,12 @@ def claim_many(directory: str | Path, keys, limit: int | None = None) -> tuple[C
     if _use_ofd():
         fd = os.open(os.path.join(directory, CLAIMS_FILE), os.O_RDWR | os.O_CREAT, 0o666)
         try:
-            n = 0
+            n, seen = 0, set()
             for key in keys:
-                ok = n < limit and _ofd_lock(fd, _digest(key), False)
+                digest = _digest(key)
+                # a key twice: taken once (one open file's locks never refuse each other)
+                ok = n < limit and digest not in seen and _ofd_lock(fd, digest, False)
+                seen.add(digest)
                 n += ok
                 taken.append(ok)
         except BaseException:
@@ -1183,11 +1205,14 @@ def committed_gains(directory: str | Path) -> set:
     out = set()
     for p in list_measurements(directory):
         if is_batch_name(p):
+            side = sidecar_path(p)
             try:
-                meta = json.loads(_read_regular(sidecar_path(p), MAX_BATCH_SIDECAR_BYTES, "sidecar"))
-                out.update([tuple(float(x) for x in pm["gains"]) for pm in meta["points"]])
-            except (MeasurementError, ValueError, TypeError, KeyError):
-                pass
+                points = _sidecar_json(side, _read_regular(side, MAX_BATCH_SIDECAR_BYTES, "sidecar"))["points"]
+                gains = [pm["gains"] for pm in points]
+            except (MeasurementError, TypeError, KeyError):
+                continue
+            if all(_is_gains(g) for g in gains):
+                out.update(tuple(float(x) for x in g) for g in gains)
             continue
         m = NAME_RE.match(p.name)
         if m and m.group("uid") and m.group("gains"):

@@ -278,8 +278,8 @@ def test_many_claims_at_once_take_the_free_points_up_to_a_limit(tmp_path, monkey
     assert dataio.claim(tmp_path, keys[0]) is None and last is not None
     for c in (held, other, last):
         c.release()
-    again, taken = dataio.claim_many(tmp_path, keys)
-    assert all(taken)   # all released
+    again, taken = dataio.claim_many(tmp_path, keys + keys[:1])
+    assert taken == [True] * 10 + [False]   # all released; a key twice is taken once
     again.release()
 
 
@@ -377,6 +377,26 @@ def test_batches_read_one_after_another_keep_their_numbers(tmp_path):
         np.testing.assert_array_equal(m.angle1, k)
 
 
+def test_committed_gains_of_a_damaged_batch_sidecar_are_none(tmp_path):
+    p, _ = _batch(tmp_path)
+    assert dataio.committed_gains(tmp_path) == set(BATCH_GAINS)
+    _edit_sidecar(p, lambda m: m["points"][1].update(gains="123"))
+    assert dataio.committed_gains(tmp_path) == set()
+    p.with_suffix(".json").write_text("[" * 100_000)   # nested too deeply to parse
+    assert dataio.committed_gains(tmp_path) == set()
+
+
+def test_a_batch_takes_numpy_values_and_only_its_names_are_listed(tmp_path):
+    t = np.arange(5) * 0.002
+    p = dataio.write_batch(tmp_path, [(t, 267 + t, 273 - t, np.array([20, 0.01, 0.02]), {"completed": np.True_})],
+                           {"step_turns": np.float32(0.5), "twin_seed": np.int64(3)})
+    (m,) = dataio.read_file(p)
+    assert m.meta["step_turns"] == 0.5 and m.meta["twin_seed"] == 3 and m.meta["completed"] is True
+    (tmp_path / "notes_batch.csv").write_text("not a measurement\n")
+    (tmp_path / "20210701_123005_lgABCDEF012345_batch.csv").write_text("0,0,0\n")
+    assert dataio.list_measurements(tmp_path) == [p]
+
+
 def test_a_batch_refuses_bad_measurements_naming_which(tmp_path):
     t = np.arange(5) * 0.002
     good = (t, 267 + t, 273 - t, (20, 0.01, 0.02), {})
@@ -406,6 +426,13 @@ def test_a_batch_refuses_bad_measurements_naming_which(tmp_path):
      r"field points\[2\]\.'completed' must be true or false"),
     (lambda p: _edit_sidecar(p, lambda m: m.update(format=2)), "field 'format' must be 3"),
     (lambda p: _edit_sidecar(p, lambda m: m.update(points=[])), "field 'points' must be a non-empty list"),
+    (lambda p: _edit_sidecar(p, lambda m: m.update(format=3.0)), "field 'format' must be 3"),
+    (lambda p: _edit_sidecar(p, lambda m: m.update(angles="relative")), "field 'angles' must be 'absolute'"),
+    (lambda p: _edit_sidecar(p, lambda m: m.pop("angles")), "field 'angles' must be 'absolute'"),
+    (lambda p: _edit_sidecar(p, lambda m: m["points"][0].update(angles="relative")),
+     r"field points\[0\]\.'angles' does not belong to one measurement of a batch"),
+    (lambda p: _edit_sidecar(p, lambda m: m["points"][1].pop("completed")),
+     r"field points\[1\]\.'completed' must be true or false"),
     (lambda p: _edit_sidecar(p, lambda m: m["points"].__setitem__(1, [20, 0.01, 0.02])),
      r"field points\[1\] must be a JSON object, got list"),
 ])
