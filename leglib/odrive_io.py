@@ -1089,9 +1089,10 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
     device, KeyboardInterrupt) loses no finished point; the axes go IDLE whatever happens.
     On the twin, pending points run in batches of ``chunk`` through the compiled kernel
     (the thesis grid in one: a batch costs a fixed setup, and the kernel shares a batch
-    out best when it is large), and each batch's file is flushed to disk at its end
-    (:func:`leglib.dataio.deferred_sync`); on USB one after the other, each file flushed
-    as it is written.
+    out best when it is large); a batch's file is not flushed to disk by itself, only its
+    directory at the batch's end (:func:`leglib.dataio.deferred_sync`: after a power loss
+    it may be missing or cut, which the reader refuses and a resumed sweep measures
+    again); on USB one after the other, each file flushed as it is written.
     """
     import os
 
@@ -1138,7 +1139,10 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
         g = dataio.uncommitted_claim_key(p)
         c = dataio.claim(out_dir, g) if g is not None else None
         if c is not None:  # its writer is gone (a live writer holds the claim)
-            if os.path.lexists(p):
+            # a sidecar whose CSV appeared meanwhile was committed by a writer that has
+            # finished since it was listed: it stays
+            committed = p.suffix == ".json" and os.path.lexists(p.with_suffix(".csv"))
+            if os.path.lexists(p) and not committed:
                 set_aside.append(dataio.set_aside(p))
             c.release()
 
@@ -1184,8 +1188,8 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
                     continue
                 if block:
                     if batched:
-                        # the twin's batch: one batch file, flushed to disk once, at its end
-                        # (dataio.deferred_sync)
+                        # the twin's batch: one batch file, its directory flushed at the
+                        # end (dataio.deferred_sync)
                         arr = np.array(block)
                         out = dev.sim.step_batch(arr, step_turns=step, duration=duration,
                                                  sample_period=sample_period, vel_limit=vl,

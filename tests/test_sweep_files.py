@@ -103,6 +103,17 @@ def test_a_live_writers_unfinished_batch_is_left_alone_and_a_dead_ones_set_aside
     _complete_and_correct(tmp_path, GRID)
 
 
+def test_a_batch_committed_after_it_was_listed_as_unfinished_stays(dev, tmp_path, monkeypatch):
+    """A resumed sweep lists another writer's sidecar while that writer is between sidecar
+    and commit; the writer commits and ends before the claim is tried: the batch stays."""
+    io.sweep(dev, GRID, tmp_path, **SHORT)
+    (batch,) = [p for p in dataio.list_measurements(tmp_path) if dataio.is_batch_name(p)]
+    monkeypatch.setattr(dataio, "find_uncommitted", lambda d: [batch.with_suffix(".json")])
+    res = io.sweep(dev, GRID, tmp_path, **SHORT)
+    assert res.set_aside == [] and res.skipped == len(GRID)
+    _complete_and_correct(tmp_path, GRID)
+
+
 def test_old_orphan_csv_is_set_aside_and_measured_again(dev, tmp_path):
     """A CSV of the previous format whose sidecar was never written (absolute angles)."""
     orphan = tmp_path / "20210701_123005_30.000;0.050;0.020_positions.csv"
