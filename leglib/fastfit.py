@@ -525,7 +525,7 @@ def _fit_one(t_in, y, out):
         iters += k
         # two starts that end in one minimum (the same cost, zeta and wn): the search has
         # found it from both sides, the remaining starts are not tried
-        same = (used > 1 and abs(cost - best_cost) <= SAME_COST * best_cost
+        same = (used > 1 and math.isfinite(best_cost) and abs(cost - best_cost) <= SAME_COST * best_cost
                 and abs(p[0] - best[0]) <= SAME_PARAM * best[0] and abs(p[1] - best[1]) <= SAME_PARAM * best[1])
         if cost < best_cost:
             best_cost = cost
