@@ -536,8 +536,15 @@ def _save_and_reconnect(dev: Device, timeout: float = 10.0) -> None:
 def clear_errors(odrv) -> None:
     """Clear all error flags the firmware's way (after inspecting them): ``odrv.clear_errors()``
     on 0.5.2+ (main.cpp:236-249; it also re-arms an enabled brake resistor),
-    ``axis.clear_errors()`` on 0.5.1 (fw-v0.5.1 axis.hpp:108-116)."""
+    ``axis.clear_errors()`` on 0.5.1 (fw-v0.5.1 axis.hpp:108-116).
+
+    An IDLE axis's watchdog is switched off first: left on after a lost link, unfed, it
+    would expire again at once (axis.cpp:165-182) and the flag would be back before the
+    next experiment starts."""
     dev = as_device(odrv)
+    for a in (0, 1):
+        if bool(dev.get(a, "enable_watchdog")) and int(dev.get(a, "current_state")) == AXIS_STATE_IDLE:
+            dev.set(a, "enable_watchdog", False)
     if _has_system_error(dev):
         dev.raw.clear_errors()
     else:
@@ -832,16 +839,15 @@ def _prepare_closed_loop(dev: Device, vel_limit: float, watchdog: float | None) 
             dev.set(a, "enable_watchdog", False)
 
 
-def _enter_closed_loop(dev: Device, feed: bool = True) -> None:
+def _enter_closed_loop(dev: Device) -> None:
     """Request closed loop on both axes and wait until both are in it: the request is taken
     up by the axis thread about 1 ms later, and entering sets ``input_pos := pos_estimate``
     (axis.cpp:290-291, 455-488), so targets are written only after this returns."""
     for a in (0, 1):
         dev.set(a, "requested_state", AXIS_STATE_CLOSED_LOOP_CONTROL)
     _wait_states(dev, (0, 1), AXIS_STATE_CLOSED_LOOP_CONTROL, what="entering closed loop")
-    if feed:
-        for a in (0, 1):
-            dev.axis(a).watchdog_feed()
+    for a in (0, 1):
+        dev.axis(a).watchdog_feed()
 
 
 @functools.lru_cache(maxsize=None)
@@ -1434,24 +1440,52 @@ def return_to_rest(odrv, pos_gain: float = 20.0, vel_gain: float = 0.05, vel_int
     """Bring the leg back to its rest pose (the zeroed motor positions, see
     :func:`zero_joints`) with soft position control, then IDLE and let it settle. Returns
     the joint angles [rad] it ends at. Experiments that start "from rest" call it between
-    runs on a real bench."""
+    runs on a real bench.
+
+    The leg is held under the watchdog (:data:`HOLD_WATCHDOG` s, fed every
+    :data:`HOLD_FEED_PERIOD` s): a link lost or an interrupt while it holds leaves both axes
+    IDLE within the watchdog time, as in every other experiment."""
     dev = as_device(odrv)
     _check_gains(dev.config, pos_gain, vel_gain, vel_integrator_gain)
+    for name, value in (("move_time", move_time), ("settle", settle)):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(value) or not 0 <= value <= 60:
+            raise ValueError(f"{name} must be a number of seconds in [0, 60], got {value!r}")
     with safe(dev):
-        _prepare_closed_loop(dev, min(dev.config.vel_limit, 2.0), watchdog=None)
+        _prepare_closed_loop(dev, min(dev.config.vel_limit, 2.0), watchdog=HOLD_WATCHDOG)
         for a in (0, 1):
             dev.set(a, "pos_gain", pos_gain)
             dev.set(a, "vel_gain", vel_gain)
             dev.set(a, "vel_integrator_gain", vel_integrator_gain)
             dev.set(a, "control_mode", CONTROL_MODE_POSITION)
             dev.set(a, "input_mode", INPUT_MODE_PASSTHROUGH)
-        _enter_closed_loop(dev, feed=False)
+        _enter_closed_loop(dev)
         for j, a in enumerate(dev.axes.axis_of_joint):
             dev.set(a, "input_pos", dev.axes.zero[j])
-        dev.sleep(move_time)
+        _hold(dev, move_time)
     dev.sleep(settle)
     a1, a2 = dev.axes.axis_of_joint
     return float(dev.axes.counts_to_joint(dev.counts(a1), 0)), float(dev.axes.counts_to_joint(dev.counts(a2), 1))
+
+
+# the watchdog of a hold in closed loop (return_to_rest) and how often it is fed [s]: the
+# feed period leaves room for a slow USB transaction or a busy host
+HOLD_WATCHDOG = 0.5
+HOLD_FEED_PERIOD = 0.1
+
+
+def _hold(dev: Device, seconds: float, feed_period: float = HOLD_FEED_PERIOD) -> None:
+    """Let ``seconds`` pass with both axes armed, feeding their watchdogs every
+    ``feed_period`` s (a plain sleep would let an enabled watchdog expire, and a disabled
+    one would not stop the motors if the link died meanwhile)."""
+    end = dev.time() + seconds
+    while True:
+        left = end - dev.time()
+        if left <= 0:
+            return
+        dev.sleep(min(feed_period, left))
+        for a in (0, 1):
+            dev.axis(a).watchdog_feed()
 
 
 def sine_torque_table(bias: float = 0.045, amplitude: float = 0.025, freqs=(0.45, 0.7),
