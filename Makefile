@@ -14,7 +14,7 @@ HEADLESS := MPLBACKEND=Agg
 # JupyterLab refuses to start as root without --allow-root
 LAB_ROOT := $(shell [ "$$(id -u)" = 0 ] && echo --allow-root)
 
-.PHONY: run test venv sysdeps bench robustness clean lab
+.PHONY: run test venv sysdeps bench robustness clean lab lint hooks
 
 venv: $(STAMP)
 
@@ -55,8 +55,21 @@ bench: $(STAMP)
 robustness: $(STAMP)
 	$(HEADLESS) $(BIN)/python -m leglib robustness --out reports/robustness
 
-lab: $(STAMP)
+lab: $(STAMP) hooks
 	$(BIN)/jupyter lab notebooks/ $(LAB_ROOT)
+
+lint: $(STAMP)
+	$(BIN)/ruff check leglib tests benchmarks
+
+# in a git checkout: the commit hooks (.pre-commit-config.yaml) and a clean filter that strips
+# notebook outputs on `git add` (JupyterLab autosaves outputs into notebooks/)
+hooks: $(STAMP)
+	@if [ -d .git ]; then \
+	  $(BIN)/pre-commit install --install-hooks >/dev/null && \
+	  git config filter.nbstripout.clean "$(abspath $(BIN))/nbstripout --keep-id -t" && \
+	  git config filter.nbstripout.smudge cat && \
+	  git config filter.nbstripout.required true && \
+	  echo "hooks installed: ruff and nbstripout on commit, outputs stripped on git add"; fi
 
 clean:
 	rm -rf $(VENV) reports/*.ipynb reports/*.html reports/figures reports/metrics

@@ -18,6 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
+import leglib as lg
+from leglib.design.points import identify_many
+from leglib.device.virtual import device_of, find_any
+from leglib.experiments.step import _responses_from_batch
+from leglib.notebook import liveview
+from leglib.twin.host import Twin
+
 RESULTS = Path(__file__).with_name("results")
 
 
@@ -38,38 +45,36 @@ def timed(fn, repeat: int) -> dict:
 
 def _device(seed: int):
     """A configured, calibrated virtual ODrive."""
-    from leglib import odrive_io as io
-    dev = io.connect("virtual", seed=seed)
-    io.apply_configuration(dev)
-    io.calibrate(dev)
+    dev = lg.connect("virtual", seed=seed)
+    lg.configure(dev)
+    lg.calibrate(dev)
     return dev
 
 
 def bench_twin_single_step():
     """One 1.5 s step on the twin through odrive_io (target <= 50 ms)."""
-    from leglib import odrive_io as io
     dev = _device(1)
-    r = timed(lambda: io.step_response(dev, 50, 0.046, 0.001), repeat=15)
+    r = timed(lambda: lg.step_response(dev, 50, 0.046, 0.001), repeat=15)
     return {**r, "target_s": 0.050}
 
 
 def bench_twin_thesis_grid():
     """The thesis grid, 4 x 10 x 10 = 400 steps of 1.5 s, through odrive_io.sweep's batch
     path without writing files (target <= 5 s)."""
-    from leglib import odrive_io as io
     dev = _device(1)
-    grid = io.thesis_grid()
+    grid = lg.thesis_grid()
 
     def run():
         out = dev.sim.step_batch(grid, vel_limit=dev.config.step_vel_limit, abort_error_turns=0.8)
-        io._responses_from_batch(dev, grid, out, 0.4)
+        _responses_from_batch(dev, grid, out, 0.4)
     return {**timed(run, repeat=5), "target_s": 5.0, "points": len(grid)}
 
 
 def bench_second_order():
     """second_order on a 750-sample noisy step (target <= 0.5 ms: 1/400 of the numpy loop
     of one axis over the thesis grid, about 0.19 s)."""
-    from leglib.identify import _model, second_order
+    from leglib.identify.fastfit import model as _model
+    from leglib.identify.step import second_order
     t = np.arange(750) * 0.002
     y = np.floor(_model(t, 0.24, 31.4, 1600.0, 0.0, 0.01) + np.random.default_rng(0).normal(0, 0.35, 750) + 0.5)
     return {**timed(lambda: second_order(t, y), repeat=200), "target_s": 0.0005}
@@ -77,20 +82,18 @@ def bench_second_order():
 
 def _thesis_grid_responses(seed: int = 11):
     """The thesis grid's 400 step responses on the twin (simulated once)."""
-    from leglib import odrive_io as io
     dev = _device(seed)
-    grid = io.thesis_grid()
+    grid = lg.thesis_grid()
     out = dev.sim.step_batch(grid, vel_limit=dev.config.step_vel_limit, abort_error_turns=0.8)
-    return io._responses_from_batch(dev, grid, out, 0.4)
+    return _responses_from_batch(dev, grid, out, 0.4)
 
 
 def bench_identify_thesis_grid():
     """Second-order identification of the thesis grid's 400 twin responses in one compiled
     call (gainmap.identify_many; unstable points are skipped, as in the map); target
     <= 1 s, a quarter of the process-pool least squares it replaces."""
-    from leglib import gainmap as GM
     responses = _thesis_grid_responses()
-    return {**timed(lambda: GM.identify_many(responses), repeat=7), "target_s": 1.0,
+    return {**timed(lambda: identify_many(responses), repeat=7), "target_s": 1.0,
             "points": len(responses), "completed": sum(r.completed for r in responses)}
 
 
@@ -145,9 +148,8 @@ def numpy_single_axis(gains, inertia, viscous, torque_constant, current_bandwidt
 def bench_numpy_single_axis():
     """The reference: numpy_single_axis over the 400 thesis-grid points (the issue measured
     0.19 s here); the target of the whole pipeline."""
-    from leglib import odrive_io as io
     from leglib.model import mass_matrix
-    from leglib.twin import Twin
+    from leglib.twin.host import Twin
     tw = Twin(seed=1, noise=False)
     N = tw.axes.gear_ratio
     # the first joint's inertia and viscous friction at rest, seen at the motor shaft
@@ -155,7 +157,7 @@ def bench_numpy_single_axis():
     kw = dict(inertia=J, viscous=tw.plant.viscous1 / N ** 2, torque_constant=tw.config.torque_constant,
               current_bandwidth=tw.config.current_control_bandwidth, vel_limit=tw.config.step_vel_limit,
               loop_hz=tw.config.loop_frequency)
-    grid = io.thesis_grid()
+    grid = lg.thesis_grid()
     return {**timed(lambda: numpy_single_axis(grid, **kw), repeat=5), "target_s": None, "points": len(grid)}
 
 
@@ -168,10 +170,8 @@ def bench_thesis_pipeline_files():
     import shutil
     import tempfile
 
-    from leglib import gainmap as GM
-    from leglib import odrive_io as io
     dev = _device(11)
-    grid = io.thesis_grid()
+    grid = lg.thesis_grid()
     root = Path(tempfile.mkdtemp(prefix="bench_sweep_"))
     runs = iter(range(1 << 30))
     parts = []   # per run: {part: (wall, cpu)}
@@ -188,8 +188,8 @@ def bench_thesis_pipeline_files():
         # that skip recently freed inodes (ext4 without a journal), a cost of the clean-up
         out = root / f"sweep{next(runs)}"
         record = {}
-        part(record, "sweep", lambda: io.sweep(dev, grid, out, progress=False))
-        gm = part(record, "from_measurements", lambda: GM.GainMap.from_measurements(out))
+        part(record, "sweep", lambda: lg.sweep(dev, grid, out, progress=False))
+        gm = part(record, "from_measurements", lambda: lg.GainMap.from_measurements(out))
         part(record, "gains_for", lambda: gm.gains_for(0.24, 5.0))
         parts.append(record)
     try:
@@ -208,14 +208,12 @@ def bench_sweep_map_pipeline():
     """The thesis grid on the twin end to end, in memory: 400 step simulations, 400
     identifications (one compiled batch), the map with gap filling and interpolation, one
     inverse query (target <= 5 s)."""
-    from leglib import gainmap as GM
-    from leglib import odrive_io as io
     dev = _device(11)
-    grid = io.thesis_grid()
+    grid = lg.thesis_grid()
 
     def run():
         out = dev.sim.step_batch(grid, vel_limit=dev.config.step_vel_limit, abort_error_turns=0.8)
-        gm = GM.GainMap.from_responses(io._responses_from_batch(dev, grid, out, 0.4))
+        gm = lg.GainMap.from_responses(_responses_from_batch(dev, grid, out, 0.4))
         gm.gains_for(0.24, 5.0)
     return {**timed(run, repeat=5), "target_s": 5.0, "points": len(grid)}
 
@@ -227,7 +225,7 @@ def _ivp_step(tw, gains, step=0.4, duration=1.5):
 
     from scipy.integrate import solve_ivp
 
-    from leglib.model import _fivebar_dynamics
+    from leglib.model.terms import _fivebar_dynamics
     kp_g, kv_g, ki_g = gains
     N, dirn, kt = tw.axes.gear_ratio, tw.axes.direction, tw.motor.torque_constant
     bw_e, wc = tw.config.encoder_bandwidth, tw.config.current_control_bandwidth
@@ -275,7 +273,7 @@ def _ivp_step(tw, gains, step=0.4, duration=1.5):
 def bench_vs_solve_ivp():
     """Per-point cost: the twin's batch kernel (400 steps at once) against solve_ivp of the
     same cascade and leg, one point at a time (8 points, extrapolated); target >= 200x."""
-    from leglib.twin import Twin
+    from leglib.twin.host import Twin
     tw = Twin(seed=1, noise=False)
     grid = np.array([(p, v, i) for p in (20.0, 50.0) for v in (0.03, 0.08) for i in (0.002, 0.04)])
     full = np.repeat(grid, 50, axis=0)  # 400 points
@@ -301,9 +299,8 @@ def bench_client_transaction():
     ODrive (leglib.virtual_odrive.find_any): per transaction, median of runs of 200 reads
     and 200 writes. Target 0.5 ms: Listing 7.4 samples with 4 transactions every ~2 ms
     (the thesis's loop), so the host must keep up with the virtual clock in real time."""
-    from leglib import virtual_odrive as V
-    odrv = V.find_any(seed=9001)
-    sim = V.device_of(odrv)
+    odrv = find_any(seed=9001)
+    sim = device_of(odrv)
     n = 200
 
     def reads():
@@ -344,7 +341,7 @@ def _liveview_run(n=1500, period=0.002):
 def bench_liveview_callback():
     """Cost of one LiveView.on_sample call (what an experiment's loop pays per sample),
     median over batches of 10,000 calls; target <= 20 us (1 % of a 2 ms period)."""
-    from leglib.liveview import LiveView
+    from leglib.notebook.liveview import LiveView
     view = LiveView(queue_size=1_000_000, renderer="thread")
     sample = {"t": 0.1, "q1": 4.66, "q2": 4.76, "iq": (0.5, -0.4), "setpoint": (4.5, 4.9)}
     per_call = []
@@ -364,7 +361,6 @@ def bench_liveview_sampling():
     median sample period (target: the requested 2 ms, within 1 %), how late samples came
     (99th percentile, maximum), the achieved redraw rate and one drawing's cost. Both
     renderers; "time" is the process renderer's median period."""
-    from leglib import liveview
     leg, run = _liveview_run()
     out = {}
     for mode in ("none", "process", "thread"):
@@ -390,10 +386,8 @@ def bench_twin_unmodeled_effects():
     """The thesis grid (400 steps) on the twin's kernel with every unmodeled effect on
     (plant_bench: compliant belt, cogging, encoder error, LuGre) against the default plant
     (all off); reported: the bench plant's median and the ratio of CPU medians."""
-    from leglib import odrive_io as io
-    from leglib import twin as T
-    grid = io.thesis_grid()
-    default, bench = T.Twin("default", seed=1), T.Twin("bench", seed=1)
+    grid = lg.thesis_grid()
+    default, bench = Twin("default", seed=1), Twin("bench", seed=1)
     off = timed(lambda: default.step_batch(grid), repeat=3)
     on = timed(lambda: bench.step_batch(grid), repeat=3)
     print(f"      effects off {off['median_s']:.3f} s, on {on['median_s']:.3f} s (cpu x "

@@ -2,14 +2,20 @@
 
 from __future__ import annotations
 
+import base64
+import io
+import tempfile
+from pathlib import Path
+
 import numpy as np
+from PIL import Image
 
 from . import model as M
 
 
 def _ax(ax):
     if ax is None:
-        import matplotlib.pyplot as plt
+        import matplotlib.pyplot as plt  # load time: matplotlib (about 0.5 s), only when drawing
         _, ax = plt.subplots()
     return ax
 
@@ -43,9 +49,9 @@ def plot_workspace(leg, ax=None, n: int = 45):
 
 
 def plot_model_difference(cmp: dict, axes=None):
-    """Three maps from :func:`leglib.model.compare_models`: inertia, gravity, foot height."""
+    """Three maps from :func:`leglib.model.linear.compare_models`: inertia, gravity, foot height."""
     if axes is None:
-        import matplotlib.pyplot as plt
+        import matplotlib.pyplot as plt  # load time: matplotlib (about 0.5 s), only when drawing
         _, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     ext = np.degrees([cmp["theta"].min(), cmp["theta"].max(), cmp["gap"].min(), cmp["gap"].max()])
     panels = [
@@ -124,7 +130,7 @@ def plot_step_identification(t, y, fit, ax=None):
 
 
 def plot_pole_map(d, ax=None):
-    """Closed-loop and observer poles of a :class:`leglib.statefeedback.Design`, with the
+    """Closed-loop and observer poles of a :class:`leglib.design.statefeedback.StateFeedback`, with the
     open-loop poles of its model."""
     ax = _ax(ax)
     ol = np.linalg.eigvals(d.sys.A)
@@ -156,7 +162,7 @@ def plot_step_comparison(series: dict, target_deg: float, ax=None, joint: str = 
 
 
 def plot_gain_region(gm, ax=None, targets=None, marker=None, numbered: bool = True):
-    """The achievable (zeta, fn) region of a :class:`leglib.gainmap.GainMap` (the thesis's
+    """The achievable (zeta, fn) region of a :class:`leglib.design.gainmap.GainMap` (the thesis's
     Fig. 6.12), measured grid points on top; optional targets ((M, 2) zeta, fn [Hz]),
     numbered 1..M in order (to match a table's rows) when ``numbered``, and a highlighted
     point ``marker`` (zeta, fn)."""
@@ -187,7 +193,7 @@ def plot_gain_region(gm, ax=None, targets=None, marker=None, numbered: bool = Tr
 def plot_map_slices(gm, field: str = "zeta", axes=None):
     """One image per pos_gain: ``field`` ("zeta" or "fn" [Hz]) over vel_gain x
     vel_integrator_gain; cells without a value (unstable, failed) are left white."""
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # load time: matplotlib (about 0.5 s), only when drawing
     data = gm.zeta if field == "zeta" else gm.fn
     n = len(gm.axes[0])
     if axes is None:
@@ -212,7 +218,7 @@ def plot_thesis_peaks(t, reading, ax=None):
     """Listing 7.7's view of a step (the thesis's Fig. 6.10): smooth(-y) [m] with the peaks
     ``findpeaks`` found as red circles and the reading (thesis measure) in the legend.
 
-    ``reading`` is a :class:`leglib.identify.ThesisReading` of ``t``.
+    ``reading`` is a :class:`leglib.identify.listing77.ThesisReading` of ``t``.
     """
     ax = _ax(ax)
     label = (f"Listing 7.7: zeta = {reading.zeta:.3f}, 1/(t2 - t1) = {reading.fd:.2f} Hz"
@@ -270,7 +276,7 @@ def leg_points(leg, q1, q2) -> np.ndarray:
     upper joint 2, foot, upper joint 1 again (the closed outline :func:`draw_leg` draws).
 
     ``q1``, ``q2`` [rad], scalars or arrays of one shape. The foot is the end of link 4
-    hung from link 1, i.e. :func:`leglib.model.foot_position`.
+    hung from link 1, i.e. :func:`leglib.model.kinematics.foot_position`.
     """
     q1 = np.asarray(q1, dtype=float)
     q2 = np.asarray(q2, dtype=float)
@@ -307,7 +313,7 @@ def animate_leg(leg, q1, q2, t, ax=None, max_frames: int = 60, speed: float = 1.
         (needs nothing) or ``to_html5_video()`` (needs ffmpeg); save a GIF with
         :func:`save_animation`.
     """
-    from matplotlib import animation
+    from matplotlib import animation  # load time: matplotlib, only when drawing
 
     q1 = np.asarray(q1, dtype=float).ravel()
     q2 = np.asarray(q2, dtype=float).ravel()
@@ -321,7 +327,7 @@ def animate_leg(leg, q1, q2, t, ax=None, max_frames: int = 60, speed: float = 1.
     if max_frames < 2 or speed <= 0:
         raise ValueError(f"max_frames must be >= 2 and speed > 0, got {max_frames}, {speed}")
     if ax is None:
-        import matplotlib.pyplot as plt
+        import matplotlib.pyplot as plt  # load time: matplotlib (about 0.5 s), only when drawing
         _, ax = plt.subplots(figsize=(3.6, 4.4), dpi=72)
     fig = ax.figure
     idx = np.unique(np.round(np.linspace(0, t.size - 1, min(max_frames, t.size))).astype(int))
@@ -374,9 +380,8 @@ def save_animation(anim, path, fps: float | None = None) -> "Path":
 
     ``fps`` defaults to the animation's own rate (1000 / interval). Returns the path.
     """
-    from pathlib import Path
 
-    from matplotlib.animation import PillowWriter
+    from matplotlib.animation import PillowWriter  # load time: matplotlib, only when drawing
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fps = fps if fps is not None else 1000.0 / anim._interval
@@ -395,15 +400,10 @@ def show_animation(anim, figures_dir=None, name: str | None = None):
     -------
     IPython.display.HTML
     """
-    import base64
-    import io
-    import tempfile
-    from pathlib import Path
 
-    import matplotlib.pyplot as plt
-    from IPython.display import HTML
-    from matplotlib.animation import HTMLWriter
-    from PIL import Image
+    import matplotlib.pyplot as plt  # load time: matplotlib (about 0.5 s), only when drawing
+    from IPython.display import HTML  # load time: IPython, only inside a notebook
+    from matplotlib.animation import HTMLWriter  # load time: matplotlib, only when drawing
 
     frames = []
 
@@ -433,13 +433,13 @@ def show_animation(anim, figures_dir=None, name: str | None = None):
 
 
 def plot_design_path(design, ax=None):
-    """The experiments of one :func:`leglib.gainmap.design` in the (zeta, fn) plane: each
+    """The experiments of one :func:`leglib.design.tuning.tune` in the (zeta, fn) plane: each
     experiment's measured point, numbered, the model's prediction for it, and the target
     with its tolerance box."""
     ax = _ax(ax)
     zt, ft = design.target
     tol = design.tolerance
-    from matplotlib.patches import Rectangle
+    from matplotlib.patches import Rectangle  # load time: matplotlib, only when drawing
     ax.add_patch(Rectangle((zt * (1 - tol), ft * (1 - tol)), 2 * tol * zt, 2 * tol * ft, color="tab:green",
                                alpha=0.25, label=f"target ± {tol:.0%}"))
     ax.plot([zt], [ft], "g+", ms=12)
@@ -458,7 +458,7 @@ def plot_design_path(design, ax=None):
 
 def plot_design_study(rows, ax=None, limits=(0.05, 0.10)):
     """|relative error| of zeta and fn of every design of
-    :func:`leglib.robustness.design_study`, grouped by plant and payload, with the median
+    :func:`leglib.evaluation.robustness.design_study`, grouped by plant and payload, with the median
     and worst limits as lines."""
     ax = _ax(ax)
     groups = list(dict.fromkeys(f"{r.plant}\n{r.payload:g} kg" for r in rows))

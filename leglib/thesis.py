@@ -25,8 +25,13 @@ import numpy as np
 from scipy.optimize import brentq
 
 from . import model as M
-from .identify import IdentificationError, ThesisReading, _unit_step, second_order
-from .params import LegParams
+from .errors import IdentificationError
+from .experiments.step import StepResponse
+from .files.sweepdir import read_measurements
+from .identify.fastfit import model
+from .identify.listing77 import ThesisReading
+from .identify.step import second_order
+from .params import LegParams, load_leg
 
 # ---------------------------------------------------------------------------------------
 # the thesis's targets and results, in the thesis's measure (Listing 7.7)
@@ -101,7 +106,7 @@ def first_peak_needed(thesis_zeta: float, second_peak_deg: float = STEP_DEG) -> 
 
 
 def read_step(resp) -> ThesisReading:
-    """Listing 7.7's reading of a :class:`leglib.odrive_io.StepResponse` (thesis measure)."""
+    """Listing 7.7's reading of a :class:`leglib.experiments.step.StepResponse` (thesis measure)."""
     return second_order(resp.t, listing_signal(resp.q1, resp.q2), method="thesis")
 
 
@@ -118,7 +123,7 @@ def ideal_step(zeta: float, fd: float, step_deg: float = STEP_DEG, duration: flo
         raise ValueError(f"need 0 < zeta < 1 and fd > 0, got zeta={zeta}, fd={fd}")
     t = np.arange(int(round(duration / dt))) * dt
     wn = 2 * math.pi * fd / math.sqrt(1 - zeta ** 2)
-    a = step_deg * _unit_step(t, zeta, wn)
+    a = model(t, zeta, wn, step_deg, 0.0, 0.0)   # the fit's own second-order step
     return t, M.thesis_listing_height(a, -a)
 
 
@@ -177,7 +182,7 @@ def compare_readings(responses) -> list[dict]:
 
     Parameters
     ----------
-    responses : iterable of :class:`leglib.odrive_io.StepResponse`
+    responses : iterable of :class:`leglib.experiments.step.StepResponse`
 
     Returns
     -------
@@ -211,12 +216,9 @@ def compare_readings(responses) -> list[dict]:
 def read_sweep(sweep_dir, leg) -> list[dict]:
     """:func:`compare_readings` of every measurement file in ``sweep_dir`` (``leg``:
     LegParams or a parameter-set name, for the files' kinematics)."""
-    from . import dataio
-    from .odrive_io import StepResponse
-    from .params import load_leg
 
     leg = load_leg(leg) if isinstance(leg, str) else leg
-    measurements = dataio.read_measurements(sweep_dir).measurements
+    measurements = read_measurements(sweep_dir).measurements
     if not measurements:
         raise ValueError(f"no measurement files in {sweep_dir}")
     return compare_readings(StepResponse.from_measurements(measurements, leg))
@@ -395,7 +397,7 @@ def eq511_lumped(q0=(math.radians(267.0), math.radians(273.0)), g: float = 9.81)
 def leg_for_lower_masses(leg: LegParams, m3: float, m4: float) -> tuple[LegParams, dict]:
     """Re-solve the shipped parameter set for other lower-link masses ``m3``, ``m4`` [kg].
 
-    Follows data/params/leg_thesis.toml's recipe: lc3, lc4 from K1, K2, uniform-rod I3, I4,
+    Follows leg_thesis.toml's recipe: lc3, lc4 from K1, K2, uniform-rod I3, I4,
     and Jd1, Jd2 from d11, d22, so that the thesis form reproduces eq. 5.11 whatever the
     masses. Returns the leg and a dict of flags (``lc3_on_link``, ``lc4_on_link``,
     ``Jd_positive``): a guess is physical only if the COMs lie on the links and the drive

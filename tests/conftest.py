@@ -1,5 +1,7 @@
 import os
 
+from leglib.device.virtual import wire as F
+
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 import pytest  # noqa: E402
@@ -18,7 +20,7 @@ def processed(tmp_path_factory):
     (``processed/friction_identified.json``) is what notebook 03 reads."""
     import json
 
-    from leglib.notebooks import execute, notebook_paths
+    from leglib.notebook.run import execute, notebook_paths
 
     nb02 = notebook_paths()[1]
     out = tmp_path_factory.mktemp("nb02")
@@ -31,6 +33,5 @@ def processed(tmp_path_factory):
 def _fresh_virtual_devices():
     """Each test starts without virtual ODrives: they live for the process under their
     seed (leglib.virtual_odrive.find_any), so tests would otherwise share devices."""
-    from leglib import fibre_device
-    fibre_device.forget()
+    F.forget()
     yield

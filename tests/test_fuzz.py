@@ -13,8 +13,22 @@ import nbformat
 import numpy as np
 import pytest
 
-from leglib import batch, dataio, nbtools
-from leglib.notebooks import notebook_paths
+import leglib as lg
+from leglib.device.session import AXIS_STATE_IDLE, any_error, clear_errors
+from leglib.files import atomic
+from leglib.files.measurements import (
+    ANGLE_LIMIT_DEG,
+    Measurement,
+    MeasurementError,
+    read_file,
+    read_measurement,
+    write_measurement,
+)
+from leglib.files.names import parse_filename
+from leglib.files.sweepdir import find_uncommitted, list_measurements
+from leglib.notebook import batch
+from leglib.notebook import setup as nbtools
+from leglib.notebook.run import notebook_paths
 from leglib.params import PARAMS_DIR, ParameterError, load_leg, load_plant
 
 SEED = 20240917
@@ -78,11 +92,11 @@ def _mutate_sidecar(rng, meta: dict) -> dict:
     return meta
 
 
-def _check_measurement(m: dataio.Measurement):
+def _check_measurement(m: Measurement):
     assert m.t.ndim == 1 and m.t.size >= 2 and m.t.shape == m.angle1.shape == m.angle2.shape
     assert np.all(np.diff(m.t) > 0)
-    assert np.all(np.isfinite(m.angle1)) and np.all(np.abs(m.angle1) <= dataio.ANGLE_LIMIT_DEG)
-    assert np.all(np.isfinite(m.angle2)) and np.all(np.abs(m.angle2) <= dataio.ANGLE_LIMIT_DEG)
+    assert np.all(np.isfinite(m.angle1)) and np.all(np.abs(m.angle1) <= ANGLE_LIMIT_DEG)
+    assert np.all(np.isfinite(m.angle2)) and np.all(np.abs(m.angle2) <= ANGLE_LIMIT_DEG)
     assert m.gains is None or (len(m.gains) == 3 and all(math.isfinite(g) for g in m.gains))
     assert isinstance(m.stable, bool)
     if "samples" in m.meta:
@@ -91,8 +105,8 @@ def _check_measurement(m: dataio.Measurement):
 
 def _read(path):
     try:
-        return dataio.read_measurement(path), None
-    except dataio.MeasurementError as exc:
+        return read_measurement(path), None
+    except MeasurementError as exc:
         msg = str(exc)
         assert len(msg) < MAX_MESSAGE, msg[:200]
         assert Path(path).name in msg or Path(path).with_suffix(".json").name in msg, msg
@@ -101,7 +115,7 @@ def _read(path):
 
 def test_fuzz_measurement_files(tmp_path):
     t = np.arange(40) * 0.002
-    good = dataio.write_measurement(tmp_path / "src", t, 267 + 3 * np.sin(t * 30), 273 - t, {"completed": True},
+    good = write_measurement(tmp_path / "src", t, 267 + 3 * np.sin(t * 30), 273 - t, {"completed": True},
                                     gains=(35.0, 0.0213, 0.004))
     csv, side = good.read_bytes(), json.loads(good.with_suffix(".json").read_text())
     thesis_csv = b"".join(f"{a:.6f},{np.sin(a):.6f},{-a:.6f}\n".encode() for a in t)
@@ -140,7 +154,7 @@ def test_fuzz_measurement_files(tmp_path):
             p.with_suffix(".json").write_text(json.dumps(side))
             m, err = _read(p)
             if m is not None:  # accepted: the name's gains must be those of the sidecar
-                assert dataio.parse_filename(p)[1] == tuple(side["gains"])
+                assert parse_filename(p)[1] == tuple(side["gains"])
         if m is not None:
             _check_measurement(m)
             accepted += 1
@@ -168,7 +182,7 @@ def _toml_literal(v) -> str:
 def _mutate_toml(rng, text: str):
     """A mutated parameter file and whether the mutation must be refused."""
     lines = text.splitlines()
-    entries = [i for i, l in enumerate(lines) if re.match(r"^\w+ = \{ value = ", l)]
+    entries = [i for i, ln in enumerate(lines) if re.match(r"^\w+ = \{ value = ", ln)]
     i = int(entries[int(rng.integers(len(entries)))])
     op = int(rng.integers(7))
     must_fail = True
@@ -249,7 +263,7 @@ def _check_cells():
     for path in notebook_paths():
         nb = nbformat.read(str(path), as_version=4)
         code = [c.source for c in nb.cells if c.cell_type == "code"]
-        check = code[1].split("odrv = io.connect(")[0]  # 05 connects after its checks
+        check = code[1].split("odrv = lg.connect(")[0]  # 05 connects after its checks
         out[path.stem] = (code[0], check)
     return out
 
@@ -373,11 +387,10 @@ def test_fuzz_batch_specs(tmp_path):
 # -- interrupts between the files of a measurement -------------------------------------------
 
 def test_fuzz_interrupts_then_resume(tmp_path, monkeypatch):
-    from leglib import odrive_io as io
-    dev = io.connect("virtual", seed=3)
-    io.apply_configuration(dev)
-    io.calibrate(dev)
-    real = {name: getattr(dataio, name) for name in ("_write_temp", "_commit")}
+    dev = lg.connect("virtual", seed=3)
+    lg.configure(dev)
+    lg.calibrate(dev)
+    real = {name: getattr(atomic, name) for name in ("_write_temp", "_commit")}
     for k in range(6):
         rng = _rng(5000 + k)
         d = tmp_path / f"sweep{k}"
@@ -399,16 +412,16 @@ def test_fuzz_interrupts_then_resume(tmp_path, monkeypatch):
                 return inner
 
             for name in real:
-                monkeypatch.setattr(dataio, name, wrap(name))
+                monkeypatch.setattr(atomic, name, wrap(name))
             try:
-                io.sweep(dev, grid, d, duration=0.2, chunk=int(rng.integers(1, 4)), progress=False)
+                lg.sweep(dev, grid, d, duration=0.2, chunk=int(rng.integers(1, 4)), progress=False)
             except KeyboardInterrupt:
                 pass
             monkeypatch.undo()
-        io.sweep(dev, grid, d, duration=0.2, progress=False)
-        gains = sorted(tuple(m.gains) for p in dataio.list_measurements(d) for m in dataio.read_file(p))
+        lg.sweep(dev, grid, d, duration=0.2, progress=False)
+        gains = sorted(tuple(m.gains) for p in list_measurements(d) for m in read_file(p))
         assert gains == sorted(grid)  # every point once, complete and correct
-        assert dataio.find_uncommitted(d) == []
+        assert find_uncommitted(d) == []
 
 
 # -- experiment arguments ------------------------------------------------------------------
@@ -422,22 +435,21 @@ def test_fuzz_step_response_arguments():
     each call either raises a ValueError/TypeError naming the argument it refuses, or runs a
     step whose record is finite, sampled as asked and flagged completed only without a
     firmware error; the device is left IDLE and usable either way (seeded, bounded)."""
-    from leglib import odrive_io as io
     rng = _rng(7001)
     names = ("pos_gain", "vel_gain", "vel_integrator_gain", "step", "duration", "sample_period", "vel_limit")
     good = {"pos_gain": 30.0, "vel_gain": 0.05, "vel_integrator_gain": 0.02, "step": 0.4, "duration": 0.3,
             "sample_period": 0.002, "vel_limit": None}
     ran = refused = 0
-    with io.connect("virtual", seed=7001) as dev:
-        io.apply_configuration(dev)
-        io.calibrate(dev)
+    with lg.connect("virtual", seed=7001) as dev:
+        lg.configure(dev)
+        lg.calibrate(dev)
         for _ in range(60):
             args = dict(good)
             bad = list(rng.choice(names, size=int(rng.integers(0, 3)), replace=False))
             for name in bad:
                 args[name] = _EXPERIMENT_VALUES[int(rng.integers(len(_EXPERIMENT_VALUES)))]
             try:
-                r = io.step_response(dev, **args)
+                r = lg.step_response(dev, **args)
             except (ValueError, TypeError) as exc:
                 refused += 1
                 msg = str(exc)
@@ -450,9 +462,9 @@ def test_fuzz_step_response_arguments():
                 if r.completed:
                     assert r.t[-1] <= args["duration"] + 1e-9
                     assert abs(np.median(np.diff(r.t)) - args["sample_period"]) < 0.5 * args["sample_period"] + dev.sim.twin.dt
-                    assert not io._any_error(dev)   # completed only without a firmware error
+                    assert not any_error(dev)   # completed only without a firmware error
             for a in (0, 1):
-                assert int(dev.get(a, "current_state")) == io.AXIS_STATE_IDLE
-            if io._any_error(dev):
-                io.clear_errors(dev)
+                assert int(dev.get(a, "current_state")) == AXIS_STATE_IDLE
+            if any_error(dev):
+                clear_errors(dev)
     assert ran >= 5 and refused >= 20, (ran, refused)

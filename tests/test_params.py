@@ -5,8 +5,13 @@ from pathlib import Path
 
 import pytest
 
-from leglib.params import (PARAMS_DIR, ParameterError, load_leg, load_motor,
-                           load_odrive_config)
+from leglib.params import (
+    PARAMS_DIR,
+    ParameterError,
+    load_leg,
+    load_motor,
+    load_odrive_config,
+)
 
 
 def test_shipped_sets_load_in_si(leg):

@@ -9,9 +9,10 @@ import pytest
 
 from leglib import model as M
 from leglib import thesis as T
-from leglib.identify import IdentificationError, ThesisReading, _model, matlab_smooth, second_order
+from leglib.identify.listing77 import ThesisReading, matlab_smooth
+from leglib.identify.step import IdentificationError, second_order
+from leglib.identify.step import model as _model
 from leglib.params import load_leg
-
 
 # --- an independent, line-by-line transcription of Listing 7.7 --------------------------
 

@@ -1,0 +1,428 @@
+"""Designs as files: a state-feedback design or a set of cascade gains, saved and loaded.
+
+A design file is JSON (indented, one field per line, human-readable) holding
+
+- ``kind``: ``"state_feedback"`` or ``"cascade_gains"``, and ``format``: the file format's version;
+- ``provenance``: leglib version and git commit, the date (UTC, ISO 8601), the backend and
+  the device serial number the design was made for (``null`` when made without a device);
+- the design itself (see :func:`save`).
+
+Floats are written with Python's shortest round-tripping representation, so a loaded
+design equals the saved one exactly (:func:`same`). Complex arrays (poles) are written as
+``{"re": [...], "im": [...]}``. A malformed file raises :class:`DesignFileError` naming
+the file and the field.
+
+Example
+-------
+>>> d = SF.place_poles(M.linearize(leg), observer_factor=6)
+>>> designs.save("data/processed/design_03_thesis.json", d, observer_factor=6,
+...              linearization={"leg": "thesis", "coupled": False, "model": "parallelogram"})
+>>> d2 = designs.load("data/processed/design_03_thesis.json")   # a statefeedback.StateFeedback
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .._version import provenance as _prov
+from ..errors import DesignFileError
+from .statefeedback import StateFeedback
+
+FORMAT = 1
+KINDS = ("state_feedback", "cascade_gains")
+
+
+
+
+@dataclass
+class GainDesign:
+    """Cascade gains chosen for a prescribed step response of the foot.
+
+    Attributes
+    ----------
+    target : (zeta, fn) requested: damping ratio [-], natural frequency [Hz]
+    gains : (pos_gain [(turn/s)/turn], vel_gain [N*m/(turn/s)], vel_integrator_gain [N*m/turn])
+    method : how the gains were found, e.g. ``"map"`` (nearest achievable point of a
+        :class:`leglib.design.gainmap.GainMap`) or ``"model"`` (:class:`leglib.design.plantfit.LegPlantModel`)
+    predicted : (zeta, fn [Hz]) the map or model predicts at ``gains``, or None
+    measured : (zeta, fn [Hz]) identified from a step with ``gains`` on the leg, or None
+    source : where the design came from, plain values (e.g. the sweep directory and its
+        point counts, or the fitted plant's parameters)
+    """
+
+    target: tuple
+    gains: tuple
+    method: str
+    predicted: tuple | None = None
+    measured: tuple | None = None
+    source: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.target = _pair("target", self.target)
+        self.gains = tuple(float(g) for g in self.gains)
+        if len(self.gains) != 3:
+            raise ValueError(f"gains must be (pos_gain, vel_gain, vel_integrator_gain), got {self.gains!r}")
+        self.predicted = None if self.predicted is None else _pair("predicted", self.predicted)
+        self.measured = None if self.measured is None else _pair("measured", self.measured)
+        self.source = _plain(dict(self.source))
+
+
+def _pair(name, value) -> tuple:
+    v = tuple(float(x) for x in value)
+    if len(v) != 2:
+        raise ValueError(f"{name} must be (zeta, fn), got {value!r}")
+    return v
+
+
+def _plain(obj):
+    """Plain JSON values (numpy scalars and arrays to Python; NaN and inf to None)."""
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple, np.ndarray)):
+        return [_plain(v) for v in (obj.tolist() if isinstance(obj, np.ndarray) else obj)]
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        v = float(obj)
+        return v if math.isfinite(v) else None
+    if obj is None or isinstance(obj, str):
+        return obj
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"cannot store {type(obj).__name__} {obj!r} in a design file")
+
+
+# ---------------------------------------------------------------------------------------
+# provenance
+# ---------------------------------------------------------------------------------------
+
+def provenance(device=None, backend: str | None = None, serial: str | None = None) -> dict:
+    """leglib version and commit, the date (UTC), backend and device serial number.
+
+    Parameters
+    ----------
+    device : an :class:`leglib.device.session.Device` (or None): gives backend and serial
+    backend, serial : given explicitly when there is no device (they override it)
+    """
+    dev_backend, dev_serial = None, None
+    if device is not None:
+        dev_backend = getattr(device, "backend", None)
+        try:
+            dev_serial = f"{int(device.serial_number):012X}"  # as the odrive tool prints it
+        except Exception:  # noqa: BLE001 - a device without the property, or a lost link: not fatal here
+            dev_serial = None
+    return {**_prov(), "date": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "backend": backend if backend is not None else dev_backend,
+            "device_serial": serial if serial is not None else dev_serial}
+
+
+# ---------------------------------------------------------------------------------------
+# arrays to and from JSON
+# ---------------------------------------------------------------------------------------
+
+def _array_out(a):
+    a = np.asarray(a)
+    if np.iscomplexobj(a):
+        return {"re": a.real.tolist(), "im": a.imag.tolist()}
+    return a.astype(float).tolist()
+
+
+def _bad(path, name: str, why: str) -> DesignFileError:
+    return DesignFileError(f"{path}: field {name!r} {why}")
+
+
+def _number(path, name: str, v) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise _bad(path, name, f"must be a finite number, got {v!r}")
+    return float(v)
+
+
+def _array_in(path, name: str, v, shape: tuple, allow_complex: bool = False) -> np.ndarray:
+    """``v`` as a float (or complex) array of ``shape`` (None in shape: any length)."""
+    desc = " x ".join("n" if s is None else str(s) for s in shape)
+    if allow_complex and isinstance(v, dict):
+        if set(v) != {"re", "im"}:
+            raise _bad(path, name, f"as a complex array must have exactly the keys 're' and 'im', got {sorted(v)}")
+        re = _array_in(path, f"{name}.re", v["re"], shape)
+        im = _array_in(path, f"{name}.im", v["im"], re.shape)
+        return re + 1j * im
+    try:
+        a = np.array(v, dtype=float)
+    except (TypeError, ValueError):
+        raise _bad(path, name, f"must be a {desc} array of numbers, got {v!r}") from None
+    if a.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, a.shape)) or \
+            _has_bool(v):
+        raise _bad(path, name, f"must be a {desc} array of numbers, got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise _bad(path, name, "must hold finite numbers only")
+    return a
+
+
+def _has_bool(v) -> bool:
+    if isinstance(v, bool):
+        return True
+    if isinstance(v, list):
+        return any(_has_bool(x) for x in v)
+    return False
+
+
+def _get(path, data: dict, name: str, kinds=None):
+    if name not in data:
+        raise _bad(path, name, "is missing")
+    v = data[name]
+    if kinds is not None and (not isinstance(v, kinds) or isinstance(v, bool)):
+        what = {dict: "a JSON object", str: "a string", int: "an integer"}.get(kinds, str(kinds))
+        raise _bad(path, name, f"must be {what}, got {v!r}")
+    return v
+
+
+# ---------------------------------------------------------------------------------------
+# save / load
+# ---------------------------------------------------------------------------------------
+
+def _state_feedback_body(d, observer_factor, linearization) -> dict:
+    sys = d.sys
+    if observer_factor is None:
+        # the observer poles are factor * poles (statefeedback.design)
+        ratios = np.asarray(d.observer_poles) / np.asarray(d.poles)
+        observer_factor = float(np.real(ratios[0]))
+    return {
+        "poles": _array_out(d.poles),
+        "observer_factor": float(observer_factor),
+        "observer_poles": _array_out(d.observer_poles),
+        "integral_poles": None if d.integral_poles is None else _array_out(d.integral_poles),
+        "K": _array_out(d.K), "L": _array_out(d.L), "Nbar": _array_out(d.Nbar),
+        "Ki": None if d.Ki is None else _array_out(d.Ki),
+        "controllability_rank": int(d.controllability_rank),
+        "observability_rank": int(d.observability_rank),
+        "linearization": {"A": _array_out(sys.A), "B": _array_out(sys.B), "C": _array_out(sys.C),
+                          "D": _array_out(sys.D), "about": _plain(dict(linearization or {}))},
+    }
+
+
+def _gain_body(g: GainDesign) -> dict:
+    return {"target": {"zeta": g.target[0], "fn_hz": g.target[1]},
+            "gains": {"pos_gain": g.gains[0], "vel_gain": g.gains[1], "vel_integrator_gain": g.gains[2]},
+            "method": g.method,
+            "predicted": None if g.predicted is None else {"zeta": g.predicted[0], "fn_hz": g.predicted[1]},
+            "measured": None if g.measured is None else {"zeta": g.measured[0], "fn_hz": g.measured[1]},
+            "source": g.source}
+
+
+def save(path: str | Path, design, *, observer_factor: float | None = None, linearization: dict | None = None,
+         device=None, backend: str | None = None, serial: str | None = None, note: str = "") -> Path:
+    """Write a design to ``path`` (JSON, atomically: never a half-written file).
+
+    Parameters
+    ----------
+    path : file to write; its directory is created
+    design : a :class:`leglib.design.statefeedback.StateFeedback` (poles, observer poles and factor,
+        integral poles, K (2, 4), L (4, 2), Nbar (2, 2), Ki (2, 2) or None, the ranks, and
+        the linearization A, B, C, D it was placed on) or a :class:`GainDesign`
+    observer_factor : for a state-feedback design; default: observer_poles / poles
+    linearization : plain values saying where the linear model came from (e.g. leg name,
+        operating point, ``coupled``, ``model``); stored with its matrices
+    device, backend, serial : provenance, see :func:`provenance`
+    note : free text kept in the file
+
+    Returns
+    -------
+    Path written.
+    """
+    if isinstance(design, StateFeedback):
+        kind, body = "state_feedback", _state_feedback_body(design, observer_factor, linearization)
+    elif isinstance(design, GainDesign):
+        kind, body = "cascade_gains", _gain_body(design)
+    else:
+        raise TypeError(f"can save a StateFeedback (place_poles) or a GainDesign, got {type(design).__name__}")
+    data = {"kind": kind, "format": FORMAT,
+            "provenance": provenance(device, backend, serial), "note": str(note), **body}
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = json.dumps(data, indent=1, allow_nan=False) + "\n"
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def read(path: str | Path) -> dict:
+    """The raw content of a design file, its ``kind``, ``format`` and ``provenance`` checked."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise DesignFileError(f"{path}: no such design file") from None
+    except json.JSONDecodeError as exc:
+        raise DesignFileError(f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})") from None
+    if not isinstance(data, dict):
+        raise DesignFileError(f"{path}: a design file holds one JSON object, got {type(data).__name__}")
+    kind = _get(path, data, "kind", str)
+    if kind not in KINDS:
+        raise _bad(path, "kind", f"must be one of {KINDS}, got {kind!r}")
+    fmt = _get(path, data, "format", int)
+    if fmt != FORMAT:
+        raise _bad(path, "format", f"is {fmt}; this leglib reads format {FORMAT}")
+    prov = _get(path, data, "provenance", dict)
+    for key in ("leglib_version", "git_commit", "date"):
+        if not isinstance(prov.get(key), str):
+            raise _bad(path, f"provenance.{key}", f"must be a string, got {prov.get(key, 'nothing')!r}")
+    for key in ("backend", "device_serial"):
+        if key not in prov:
+            raise _bad(path, f"provenance.{key}", "is missing")
+        if prov[key] is not None and not isinstance(prov[key], str):
+            raise _bad(path, f"provenance.{key}", f"must be a string or null, got {prov[key]!r}")
+    return data
+
+
+def _load_state_feedback(path, data):
+    import control  # load time: python-control (about 2 s), only for a design's linear system
+
+    lin = _get(path, data, "linearization", dict)
+    A = _array_in(path, "linearization.A", _get(path, lin, "A"), (None, None))
+    n = A.shape[0]
+    if A.shape != (n, n):
+        raise _bad(path, "linearization.A", f"must be square, got shape {A.shape}")
+    B = _array_in(path, "linearization.B", _get(path, lin, "B"), (n, None))
+    m = B.shape[1]
+    C = _array_in(path, "linearization.C", _get(path, lin, "C"), (None, n))
+    p = C.shape[0]
+    D = _array_in(path, "linearization.D", _get(path, lin, "D"), (p, m))
+    if "about" in lin and not isinstance(lin["about"], dict):
+        raise _bad(path, "linearization.about", f"must be an object, got {lin['about']!r}")
+    poles = _array_in(path, "poles", _get(path, data, "poles"), (n,), allow_complex=True)
+    obs = _array_in(path, "observer_poles", _get(path, data, "observer_poles"), (n,), allow_complex=True)
+    _number(path, "observer_factor", _get(path, data, "observer_factor"))
+    K = _array_in(path, "K", _get(path, data, "K"), (m, n))
+    L = _array_in(path, "L", _get(path, data, "L"), (n, p))
+    Nbar = _array_in(path, "Nbar", _get(path, data, "Nbar"), (m, p))
+    Ki = _get(path, data, "Ki")
+    Ki = None if Ki is None else _array_in(path, "Ki", Ki, (m, p))
+    ip = _get(path, data, "integral_poles")
+    ip = None if ip is None else _array_in(path, "integral_poles", ip, (p,), allow_complex=True)
+    if (Ki is None) != (ip is None):
+        raise _bad(path, "Ki", "and 'integral_poles' must both be null or both be given")
+    ranks = {}
+    for name in ("controllability_rank", "observability_rank"):
+        r = _get(path, data, name)
+        if isinstance(r, bool) or not isinstance(r, int) or not 0 <= r <= n:
+            raise _bad(path, name, f"must be an integer in [0, {n}], got {r!r}")
+        ranks[name] = r
+    return StateFeedback(sys=control.ss(A, B, C, D), poles=poles, observer_poles=obs, K=K, L=L, Nbar=Nbar, Ki=Ki,
+                  integral_poles=ip, **ranks)
+
+
+def _zeta_fn(path, data, name, optional: bool):
+    v = _get(path, data, name)
+    if v is None and optional:
+        return None
+    if not isinstance(v, dict):
+        raise _bad(path, name, f"must be an object with 'zeta' and 'fn_hz', got {v!r}")
+    return tuple(_number(path, f"{name}.{k}", _field(path, v, k, name)) for k in ("zeta", "fn_hz"))
+
+
+def _field(path, obj: dict, key: str, parent: str):
+    if key not in obj:
+        raise _bad(path, f"{parent}.{key}", "is missing")
+    return obj[key]
+
+
+def _load_gains(path, data) -> GainDesign:
+    g = _get(path, data, "gains", dict)
+    gains = tuple(_number(path, f"gains.{k}", _field(path, g, k, "gains"))
+                  for k in ("pos_gain", "vel_gain", "vel_integrator_gain"))
+    if min(gains) < 0:
+        raise _bad(path, "gains", f"must not be negative, got {gains}")
+    return GainDesign(target=_zeta_fn(path, data, "target", False), gains=gains,
+                      method=_get(path, data, "method", str),
+                      predicted=_zeta_fn(path, data, "predicted", True),
+                      measured=_zeta_fn(path, data, "measured", True),
+                      source=_get(path, data, "source", dict))
+
+
+def load(path: str | Path, kind: str | None = None):
+    """Read a design written by :func:`save`.
+
+    Parameters
+    ----------
+    path : the design file
+    kind : None (either), ``"state_feedback"`` or ``"cascade_gains"``: the kind expected
+
+    Returns
+    -------
+    :class:`leglib.design.statefeedback.StateFeedback` or :class:`GainDesign`, equal (:func:`same`) to
+    the one saved. The provenance is available from :func:`read`.
+
+    Raises
+    ------
+    DesignFileError
+        naming the file and the field that is missing or malformed.
+    """
+    data = read(path)
+    if kind is not None and data["kind"] != kind:
+        if kind not in KINDS:
+            raise ValueError(f"kind must be one of {KINDS} or None, got {kind!r}")
+        raise _bad(path, "kind", f"is {data['kind']!r}, but a {kind!r} design is needed here")
+    if data["kind"] == "state_feedback":
+        return _load_state_feedback(Path(path), data)
+    return _load_gains(Path(path), data)
+
+
+def same(a, b) -> bool:
+    """True when two designs are exactly equal, field by field (arrays bitwise, dtype kind
+    and shape included; the linear models' A, B, C, D)."""
+    if type(a) is not type(b):
+        return False
+    if isinstance(a, GainDesign):
+        return a == b
+
+    def eq(x, y):
+        if x is None or y is None:
+            return x is None and y is None
+        x, y = np.asarray(x), np.asarray(y)
+        return x.shape == y.shape and np.iscomplexobj(x) == np.iscomplexobj(y) and np.array_equal(x, y)
+
+    if not isinstance(a, StateFeedback):
+        raise TypeError(f"not a design: {type(a).__name__}")
+    return (all(eq(getattr(a.sys, k), getattr(b.sys, k)) for k in "ABCD")
+            and all(eq(getattr(a, k), getattr(b, k)) for k in
+                    ("poles", "observer_poles", "K", "L", "Nbar", "Ki", "integral_poles"))
+            and a.controllability_rank == b.controllability_rank
+            and a.observability_rank == b.observability_rank
+            and a.sys.dt == b.sys.dt)
+
+
+def gain_design_from_map(gm, zeta: float, fn: float, sweep_dir: str | Path | None = None,
+                         measured=None) -> GainDesign:
+    """The map's answer for (zeta, fn [Hz]) as a :class:`GainDesign` (method ``"map"``);
+    the source records the sweep directory, the map's point counts and its gain axes."""
+    c = gm.nearest(zeta, fn)
+    return GainDesign(target=(zeta, fn), gains=c.gains, method="map", predicted=(c.zeta, c.fn), measured=measured,
+                      source={"sweep_dir": None if sweep_dir is None else str(sweep_dir), "counts": gm.counts(),
+                              "axes": [list(map(float, a)) for a in gm.axes], "distance": c.distance})
+
+
+def gain_design_from_model(model, zeta: float, fn: float, vel_integrator_gain: float = 0.01,
+                           measured=None) -> GainDesign:
+    """The gains a fitted :class:`leglib.design.plantfit.LegPlantModel` gives for (zeta, fn [Hz]) as
+    a :class:`GainDesign` (method ``"model"``); the source records the fitted plant."""
+    gains, pred = model.gains_for(zeta, fn, vel_integrator_gain=vel_integrator_gain)
+    return GainDesign(target=(zeta, fn), gains=gains, method="model", predicted=pred, measured=measured,
+                      source={"plant_params": dict(model.params), "experiments": model.experiments,
+                              "rms_turns": model.rms_turns, "step_turns": model.step,
+                              "duration_s": model.duration, "sample_period_s": model.sample_period})

@@ -1,0 +1,368 @@
+"""State feedback by pole placement with a Luenberger observer (thesis 5.4-5.5, Listing 7.5).
+
+:func:`design` places the closed-loop poles (python-control's ``place``, MIMO), the
+observer poles ``observer_factor`` times faster, and computes the setpoint gain Nbar of
+Listing 7.5; optional integral action (``integral_poles``) removes the steady-state error
+that friction leaves. :class:`Controller` is the discrete-time law (exact ZOH observer at
+the controller period) used both by :func:`simulate_closed_loop` -- the nonlinear leg with
+quantized angles and torque limits, which produces the thesis's torque table -- and by the
+live loop on the device (:func:`leglib.experiments.torque.torque_loop`).
+
+Deviation coordinates: x = (q1, dq1, q2, dq2) - (q1_0, 0, q2_0, 0), u = tau - tau_0.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import control
+import numpy as np
+from scipy.linalg import expm
+
+from .. import model as M
+from ..device.session import as_device
+from ..errors import PoleError
+from ..experiments.torque import torque_loop
+from ..params import LegParams
+
+THESIS_POLES = (-7.0, -7.007, -7.014, -7.021)
+
+
+
+
+def check_poles(poles, n: int, rank_b: int, what: str = "poles") -> np.ndarray:
+    """Validate requested poles: count, stability, conjugate pairs, multiplicity.
+
+    python-control's ``place`` (scipy's YT algorithm) cannot place a pole repeated more
+    than rank(B) times; the thesis spread its poles (-7, -7.007, ...) for that reason.
+    """
+    p = np.asarray(poles, dtype=complex).ravel()
+    if p.size != n:
+        raise PoleError(f"{what}: {p.size} given, the system has {n} states")
+    if not np.all(np.isfinite(p)):
+        raise PoleError(f"{what}: must be finite, got {p}")
+    if np.any(p.real >= 0):
+        raise PoleError(f"{what}: {p[p.real >= 0]} not in the open left half plane: the closed "
+                        f"loop would be unstable")
+    cplx = p[np.abs(p.imag) > 1e-12]
+    for z in cplx:
+        if np.sum(np.isclose(cplx, np.conj(z), rtol=1e-9, atol=1e-12)) != np.sum(np.isclose(cplx, z, rtol=1e-9, atol=1e-12)):
+            raise PoleError(f"{what}: complex pole {z} has no conjugate partner")
+    for z in np.unique(np.round(p, 9)):
+        mult = int(np.sum(np.isclose(p, z, rtol=1e-9, atol=1e-12)))
+        if mult > rank_b:
+            raise PoleError(f"{what}: {z} is repeated {mult} times but rank(B) = {rank_b}; place "
+                            f"cannot do that. Spread them (the thesis used -7, -7.007, -7.014, -7.021), "
+                            f"e.g. with leglib.design.statefeedback.spread_poles")
+    return np.where(np.abs(p.imag) > 1e-12, p, p.real)
+
+
+def parse_poles(text: str) -> np.ndarray:
+    """Poles from a string such as "-7, -7.007, -7.014, -7.021" or "-3+4j, -3-4j, -10, -11"."""
+    if not isinstance(text, str) or not text.strip():
+        raise PoleError(f"poles must be a non-empty comma-separated string, got {text!r}")
+    out = []
+    for part in text.split(","):
+        try:
+            out.append(complex(part.strip().replace(" ", "")))
+        except ValueError:
+            raise PoleError(f"cannot read pole {part.strip()!r} in {text!r}") from None
+    p = np.array(out)
+    return p.real if np.all(p.imag == 0) else p
+
+
+def spread_poles(center: float, count: int = 4, spread: float = 0.007) -> np.ndarray:
+    """``count`` real poles at center, center - spread, ... (the thesis's -7 ... -7.021)."""
+    return center - spread * np.arange(count) * np.sign(-center)
+
+
+def dominant_pair_poles(wn: float, zeta: float, fast_factor: float = 3.0, spread: float = 0.007) -> np.ndarray:
+    """Four poles: a dominant pair with natural frequency ``wn`` [rad/s] and damping
+    ``zeta`` (real and spread when zeta >= 1), and two real poles ``fast_factor`` times
+    further left. Used by the notebook's sliders."""
+    if zeta < 1:
+        wd = wn * math.sqrt(1 - zeta ** 2)
+        pair = [complex(-zeta * wn, wd), complex(-zeta * wn, -wd)]
+    else:
+        r = wn * math.sqrt(zeta ** 2 - 1)
+        pair = [-zeta * wn + r, -zeta * wn - r]
+        if abs(pair[0] - pair[1]) < spread:
+            pair[1] = pair[0] - spread
+    fast = -fast_factor * zeta * wn if zeta < 1 else fast_factor * min(pair)
+    return np.array(pair + [fast, fast - spread], dtype=complex)
+
+
+@dataclass
+class StateFeedback:
+    """A state-feedback design on the linear model ``sys``.
+
+    K (2, 4), L (4, 2), Nbar (2, 2) as in Listing 7.5; Ki (2, 2) integral gains or None;
+    poles and observer_poles requested; ranks of the controllability and observability
+    matrices.
+    """
+
+    sys: control.StateSpace
+    poles: np.ndarray
+    observer_poles: np.ndarray
+    K: np.ndarray
+    L: np.ndarray
+    Nbar: np.ndarray
+    Ki: np.ndarray | None
+    controllability_rank: int
+    observability_rank: int
+    integral_poles: np.ndarray | None = None
+
+    @property
+    def controllable(self) -> bool:
+        return self.controllability_rank == self.sys.nstates
+
+    @property
+    def observable(self) -> bool:
+        return self.observability_rank == self.sys.nstates
+
+    def closed_loop(self) -> control.StateSpace:
+        """Linear closed loop with full state feedback, reference r (2) -> y (2):
+        x' = (A - BK) x + B Nbar r (no integrator)."""
+        A, B, C = self.sys.A, self.sys.B, self.sys.C
+        return control.ss(A - B @ self.K, B @ self.Nbar, C, np.zeros((C.shape[0], B.shape[1])))
+
+    def predicted_step(self, r, t) -> np.ndarray:
+        """Predicted outputs (N, 2) [rad] of the linear closed loop for a constant reference
+        deviation ``r`` (2,) [rad]."""
+        t = np.asarray(t, dtype=float)
+        resp = control.forced_response(self.closed_loop(), t, np.tile(np.asarray(r, float)[:, None], t.size))
+        return resp.outputs.T
+
+
+def place_poles(sys: control.StateSpace, poles=THESIS_POLES, observer_factor: float = 6.0,
+           integral_poles=None) -> StateFeedback:
+    """Pole placement with observer.
+
+    Parameters
+    ----------
+    sys : linear model (e.g. :func:`leglib.model.linear.linearize`), 4 states, 2 inputs, 2 outputs
+    poles : closed-loop poles (4) [1/s]; repeated at most rank(B) = 2 times
+    observer_factor : observer poles = factor * poles (the thesis: 6)
+    integral_poles : None, or 2 poles for integrators of the output error (augmented
+        design; the state poles then are ``poles`` and the integrators' these)
+
+    Returns
+    -------
+    StateFeedback
+        ``K`` (2, 4), ``L`` (4, 2), ``Nbar`` (2, 2), ``Ki`` (2, 2) or None, the poles placed
+        and the observer's.
+
+    Raises
+    ------
+    PoleError
+        The wrong number of poles, unstable poles, an unpaired complex pole, a multiplicity
+        place cannot handle, or a non-positive ``observer_factor``.
+    ValueError
+        The system is not controllable or not observable.
+    """
+    A, B, C = np.asarray(sys.A), np.asarray(sys.B), np.asarray(sys.C)
+    n, m = B.shape
+    if not observer_factor > 0:
+        raise PoleError(f"observer_factor must be positive, got {observer_factor}")
+    rank_b = int(np.linalg.matrix_rank(B))
+    p = check_poles(poles, n, rank_b)
+    po = check_poles(observer_factor * p, n, int(np.linalg.matrix_rank(C)), "observer poles")
+    ctrb = int(np.linalg.matrix_rank(control.ctrb(A, B)))
+    obsv = int(np.linalg.matrix_rank(control.obsv(A, C)))
+    if ctrb < n:
+        raise ValueError(f"the system is not controllable (rank {ctrb} < {n}): poles cannot be placed")
+    if obsv < n:
+        raise ValueError(f"the system is not observable from {C.shape[0]} outputs (rank {obsv} < {n})")
+    Ki = None
+    pi = None
+    if integral_poles is None:
+        K = np.asarray(control.place(A, B, p))
+    else:
+        pi = check_poles(integral_poles, C.shape[0], rank_b, "integral poles")
+        # augmented state (x, z), z' = y - r: u = -K x - Ki z
+        Aa = np.block([[A, np.zeros((n, C.shape[0]))], [C, np.zeros((C.shape[0], C.shape[0]))]])
+        Ba = np.vstack([B, np.zeros((C.shape[0], m))])
+        allp = check_poles(np.concatenate([p, pi]), n + C.shape[0], rank_b, "poles with integrators")
+        Ka = np.asarray(control.place(Aa, Ba, allp))
+        K, Ki = Ka[:, :n], Ka[:, n:]
+    L = np.asarray(control.place(A.T, C.T, po)).T
+    # setpoint gain of Listing 7.5: Nbar = inv(-C (A - BK)^-1 B + D)
+    Nbar = np.linalg.inv(-C @ np.linalg.inv(A - B @ K) @ B + np.asarray(sys.D))
+    return StateFeedback(sys=sys, poles=p, observer_poles=po, K=K, L=L, Nbar=Nbar, Ki=Ki,
+                  controllability_rank=ctrb, observability_rank=obsv, integral_poles=pi)
+
+
+class Controller:
+    """The discrete-time state-feedback law with observer, at ``period`` seconds.
+
+    ``u = tau0 + Nbar r - K xhat - Ki z`` where xhat follows the observer ODE
+    xhat' = (A - LC) xhat + B (u - tau0) + L (y - y0), discretized exactly (ZOH) over one
+    period, and z integrates y - y0 - r. Angles in, joint torques out (absolute, N*m),
+    clipped to ``torque_limit``.
+    """
+
+    def __init__(self, d: StateFeedback, q0, tau0, period: float = 0.002, torque_limit: float = np.inf):
+        self.d = d
+        self.q0 = np.asarray(q0, dtype=float)
+        self.tau0 = np.asarray(tau0, dtype=float)
+        self.period = float(period)
+        self.torque_limit = float(torque_limit)
+        A, B, C, L = d.sys.A, d.sys.B, d.sys.C, d.L
+        n = A.shape[0]
+        Ao = A - L @ C
+        Bo = np.hstack([B, L])
+        big = np.zeros((n + Bo.shape[1], n + Bo.shape[1]))
+        big[:n, :n] = Ao
+        big[:n, n:] = Bo
+        E = expm(big * self.period)
+        self.Phi, self.Gamma = E[:n, :n], E[:n, n:]
+        self.reset()
+
+    def reset(self, xhat=None) -> None:
+        self.xhat = np.zeros(self.d.sys.nstates) if xhat is None else np.asarray(xhat, float).copy()
+        self.z = np.zeros(self.d.sys.noutputs)
+        self.u_dev = np.zeros(self.d.sys.ninputs)
+
+    def update(self, q, r) -> np.ndarray:
+        """One sample: measured angles ``q`` (2,) [rad], reference deviation ``r`` (2,) [rad]
+        -> joint torques (2,) [N*m] to apply until the next sample."""
+        y = np.asarray(q, dtype=float) - self.q0
+        r = np.asarray(r, dtype=float)
+        u = self.d.Nbar @ r - self.d.K @ self.xhat
+        if self.d.Ki is not None:
+            u -= self.d.Ki @ self.z
+        tau = np.clip(self.tau0 + u, -self.torque_limit, self.torque_limit)
+        self.u_dev = tau - self.tau0
+        # advance the observer and the integrator over the coming period
+        self.xhat = self.Phi @ self.xhat + self.Gamma @ np.concatenate([self.u_dev, y])
+        if self.d.Ki is not None:
+            self.z += self.period * (y - r)
+        return tau
+
+
+@dataclass
+class ClosedLoopResult:
+    """Simulated closed loop: ``t`` (N,) [s], true state ``x`` (N, 4), estimate ``xhat``
+    (N, 4) (absolute, rad and rad/s), measured angles ``y`` (N, 2), torque table ``tau``
+    (N, 2) [N*m] (row i held over [t_i, t_i + period)), reference ``r`` (2,) [rad]."""
+
+    t: np.ndarray
+    x: np.ndarray
+    xhat: np.ndarray
+    y: np.ndarray
+    tau: np.ndarray
+    r: np.ndarray
+    period: float
+    meta: dict = field(default_factory=dict)
+
+
+def simulate_closed_loop(leg: LegParams, d: StateFeedback, step=(0.0, math.radians(20.0)), duration: float = 4.5,
+                         period: float = 0.002, model: str = "fivebar", counts_per_joint_turn: int | None = None,
+                         torque_limit: float = np.inf, substeps: int = 16, friction=None) -> ClosedLoopResult:
+    """The nonlinear leg under the discrete controller with observer.
+
+    Only q1, q2 are measured, quantized; torques are limited; the leg starts at rest at its
+    operating point and at t = 0 the reference steps by ``step``. The torques form the table
+    that :func:`leglib.experiments.torque.play_torque_table` plays back.
+
+    Parameters
+    ----------
+    leg : LegParams
+        The simulated leg (its friction unless ``friction`` is given).
+    d : StateFeedback
+        The design (:func:`place_poles`).
+    step : (2,) sequence
+        The reference step of (q1, q2) [rad] (default: segment 2 by 20 deg, as in thesis 5.5).
+    duration, period : float
+        Simulated time and the controller's sample time [s].
+    model : {"fivebar", "parallelogram"}
+        The plant: the exact five-bar or the thesis's model (a).
+    counts_per_joint_turn : int, optional
+        Quantization of the measured angles (default: encoder CPR x gear ratio, the thesis's
+        4000 x 3).
+    torque_limit : float
+        |torque| limit at each joint [N*m].
+    substeps : int
+        Integration steps per sample period.
+    friction : (6,) array_like, optional
+        The plant's friction vector (:func:`leglib.model.dynamics.friction_vector`) instead
+        of the leg's.
+
+    Returns
+    -------
+    ClosedLoopResult
+        ``t`` (N,) [s], ``x`` and ``xhat`` (N, 4), ``y`` (N, 2) [rad], ``tau`` (N, 2) [N*m].
+
+    Raises
+    ------
+    ValueError
+        The simulated leg left the model's valid configuration.
+    """
+    q0 = np.array(leg.q0)
+    tau0 = M.equilibrium_torque(leg, q0, model=model)
+    ctrl = Controller(d, q0, tau0, period, torque_limit)
+    res = counts_per_joint_turn or int(leg.encoder_cpr * leg.gear_ratio)
+    quantum = 2 * math.pi / res
+    n = int(round(duration / period))
+    x = np.zeros((n, 4))
+    xh = np.zeros((n, 4))
+    y = np.zeros((n, 2))
+    tau = np.zeros((n, 2))
+    state = np.array([q0[0], 0.0, q0[1], 0.0])
+    r = np.asarray(step, dtype=float)
+    F = M.friction_vector(leg) if friction is None else np.asarray(friction, float)
+    for i in range(n):
+        x[i] = state
+        meas = np.round(state[[0, 2]] / quantum) * quantum
+        y[i] = meas
+        xh[i] = ctrl.xhat + [q0[0], 0.0, q0[1], 0.0]
+        tau[i] = ctrl.update(meas, r)
+        seg = M.simulate_torque_table(leg, state, np.tile(tau[i], (substeps + 1, 1)), period / substeps,
+                                      substeps=1, model=model, friction=F)
+        nxt = seg[-1]
+        if not np.all(np.isfinite(nxt)):
+            raise ValueError(f"simulate_closed_loop: the {model} model left its valid configuration at "
+                             f"t = {i * period:.3f} s (q = {np.degrees(state[[0, 2]])} deg)")
+        state = nxt
+    return ClosedLoopResult(t=period * np.arange(n), x=x, xhat=xh, y=y, tau=tau, r=r, period=period,
+                            meta={"model": model, "poles": d.poles.tolist(), "q0": q0.tolist(),
+                                  "tau0": tau0.tolist()})
+
+
+def response_metrics(t, y, y0: float, target: float) -> dict:
+    """Step metrics of a measured or simulated series (python-control's ``step_info`` on the
+    normalized data) plus the RMS error to the target over the whole record."""
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    span = target - y0
+    if span == 0:
+        raise ValueError("target equals the initial value: no step")
+    norm = (y - y0) / span
+    out = {"final_error_pct": float(100 * abs(norm[-1] - 1)),
+           "rms_error": float(np.sqrt(np.mean((y - target) ** 2))),
+           "overshoot_pct": float(max(0.0, 100 * (np.max(norm) - 1)))}
+    if np.max(norm) < 0.9:
+        # never reached 90 % of the step: no rise or settling time (step_info cannot say)
+        out.update(rise_time=float("nan"), settling_time=float("nan"))
+        return out
+    info = control.step_info(norm, timepts=t, final_output=1.0)
+    out.update(rise_time=float(info["RiseTime"]), settling_time=float(info["SettlingTime"]))
+    return out
+
+
+def run_live(odrv, d: StateFeedback, leg: LegParams, step=(0.0, math.radians(20.0)), duration: float = 4.5,
+             period: float = 0.002, model: str = "fivebar"):
+    """Close the loop on the device: observer and state feedback computed on the host from
+    the measured angles every ``period`` s (the link's latency included), torques written
+    back. Returns the :class:`leglib.experiments.torque.TorqueRun` (``tau`` are the applied torques).
+    """
+
+    dev = as_device(odrv)
+    limit = dev.config.current_lim * dev.config.torque_constant * leg.gear_ratio
+    ctrl = Controller(d, leg.q0, M.equilibrium_torque(leg, model=model), period, limit)
+    r = np.asarray(step, dtype=float)
+    return torque_loop(dev, lambda t, q1, q2: ctrl.update((q1, q2), r), duration, period=period,
+                          record_current=False, check_every=25,
+                          meta={"experiment": "live_state_feedback", "poles": np.asarray(d.poles).tolist(),
+                                "step_rad": r.tolist()})

@@ -1,0 +1,934 @@
+"""A virtual ODrive v3.6: the firmware's object tree over a :class:`leglib.twin.host.Twin`.
+
+The tree mirrors firmware 0.5.6 (default) or 0.5.1, property for property with the
+firmware's endpoint names (``odrv.axis0.controller.config.pos_gain``, ``odrv.error``,
+``odrv.config.enable_brake_resistor``, ...; see ``endpoints_fw-v0.5.x.json``). A v3.6
+board has no 0.6 firmware, so there is no 0.6 tree. Unknown attributes raise
+AttributeError, as on the device. Every property read or write is one USB transaction:
+the virtual clock advances by the link latency and the simulated leg moves on in the
+compiled kernel (no Python per tick). ``realtime=True`` paces the virtual clock to the wall
+clock, so host code that sleeps with ``time.sleep`` sees the leg move.
+
+What the firmware does and this device does too (file:line of fw-v0.5.6 unless marked):
+
+- ``requested_state`` is consumed by the axis thread at its next 1 ms iteration and reads
+  back 0 (AXIS_STATE_UNDEFINED) afterwards; a new request clears AXIS_ERROR_INVALID_STATE
+  (axis.cpp:455-488). Closed-loop entry feeds the watchdog (axis.cpp:577), resets the
+  controller (motor.cpp:202, controller.cpp:12-18) and sets ``input_pos := pos_estimate``
+  in position control (axis.cpp:290-291, controller.cpp:115-128).
+- Calibration is motion: motor calibration locks the rotor at ``calibration_current``
+  (3 s resistance, then 1.25 s inductance measurement; motor.cpp:416-423,457-463), then
+  the encoder offset calibration re-references the counts (``shadow_count :=
+  count_in_cpr``, encoder.cpp:344), locks 1 s, scans 16*pi electrical rad forward at
+  4*pi rad/s and back (encoder.cpp:378-447, encoder.hpp:22-23) with the leg and its stop
+  in the loop, and checks the scan against CPR and pole pairs to 2 % (encoder.cpp:425-433).
+- The watchdog counts down every tick while enabled, in every state, and is only reloaded
+  by a feed, a closed-loop entry or a boot (axis.cpp:77-81,165-182; main.cpp:413-420).
+- ``save_configuration()`` refuses (returns False) while a motor is armed, else writes
+  flash and reboots (main.cpp:159-184); the handle is lost (:class:`DeviceLostError`), a
+  new connection sees the saved configuration, the counts restart at 0, calibration is
+  gone unless ``motor.config.pre_calibrated`` (motor.cpp:306). On 0.5.1 it neither
+  refuses nor reboots (fw-v0.5.1 main.cpp:43-61).
+- The DC bus: each armed motor draws (1.5 R Iq^2 + torque * speed) / vbus; the brake
+  resistor takes the regenerated current when enabled (0.5.6 default: disabled,
+  odrive_main.h:82; 0.5.1: always); a bus current below ``dc_max_negative_current``
+  (default -0.01 A, odrive_main.h:111) disarms both motors with
+  ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT on ``odrv.error`` (low_level.cpp:320-376,
+  main.cpp:313-320; on 0.5.1 as a motor error, fw-v0.5.1 low_level.cpp:620-668).
+- Any axis error disarms and idles the axis (main.cpp:413-420, axis.cpp:343-350).
+
+Extras the real device does not have (used through ``Device.sim`` by
+:mod:`leglib.experiments`): ``sleep(s)``, ``time``, ``twin``, ``step_batch``, ``reboot()``,
+``boot_count``, ``reconnect()`` and ``disconnect_after`` for fault-injection tests.
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+
+import numpy as np
+
+from ...errors import DeviceLostError
+from ...params import OdriveConfig, PlantParams
+from ...twin import layout as L
+from ...twin.host import Twin
+from .tree import _Node, _Prop
+
+FIRMWARES = ("0.5.1", "0.5.6")
+
+
+# odrive.enums values (firmware 0.5.x), kept here so the twin runs without the odrive package
+AXIS_STATE_UNDEFINED, AXIS_STATE_IDLE, AXIS_STATE_STARTUP_SEQUENCE = 0, 1, 2
+AXIS_STATE_FULL_CALIBRATION_SEQUENCE = 3
+AXIS_STATE_MOTOR_CALIBRATION = 4
+AXIS_STATE_ENCODER_INDEX_SEARCH = 6
+AXIS_STATE_ENCODER_OFFSET_CALIBRATION = 7
+AXIS_STATE_CLOSED_LOOP_CONTROL = 8
+AXIS_ERROR_INVALID_STATE = 0x1
+AXIS_ERROR_MOTOR_FAILED = 0x40
+AXIS_ERROR_ENCODER_FAILED = 0x100
+AXIS_ERROR_WATCHDOG_TIMER_EXPIRED = L.AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
+MOTOR_ERROR_BRAKE_RESISTOR_DISARMED = 0x800000
+ENCODER_ERROR_CPR_POLEPAIRS_MISMATCH = 0x2
+ENCODER_ERROR_NO_RESPONSE = 0x4
+ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT = L.ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT
+CONTROL_MODES = (1, 2, 3)  # torque, velocity, position
+INPUT_MODE_INACTIVE, INPUT_MODE_PASSTHROUGH = 0, 1
+INPUT_MODE_POS_FILTER, INPUT_MODE_TRAP_TRAJ = 3, 5
+INPUT_MODES = (INPUT_MODE_INACTIVE, INPUT_MODE_PASSTHROUGH, INPUT_MODE_POS_FILTER, INPUT_MODE_TRAP_TRAJ)
+
+
+# firmware timings (fw-v0.5.6)
+AXIS_THREAD_PERIOD = 1e-3        # axis.cpp:447-451 osDelay(1): the state machine's iteration
+R_MEASUREMENT_TIME = 3.0         # motor.cpp:423: 3000 iterations of 1 ms
+L_MEASUREMENT_TIME = 1.25        # motor.cpp:463: 1250 iterations of 1 ms
+OFFSET_LOCK_TIME = 1.0           # encoder.cpp:329 start_lock_duration
+CALIB_SCAN_DISTANCE = 16 * math.pi   # encoder.hpp:22 [rad electrical]
+CALIB_SCAN_OMEGA = 4 * math.pi       # encoder.hpp:23 [rad/s electrical]
+CALIB_RANGE = 0.02                   # encoder.hpp:21
+
+
+# how fast the calibration current builds up: the offset calibration ramps at
+# 2 * calibration_current per second (encoder.cpp:353); the resistance measurement's voltage
+# integrator (kI = 1 V/s/A, motor.cpp:71) reaches the current with a time constant R / kI
+# (0.07 s for this motor), taken here as a linear ramp over 3 time constants
+OFFSET_RAMP_PER_A = 2.0
+
+
+# a full calibration sequence (motor, then encoder offset) from request to IDLE
+CALIBRATION_DURATION = (R_MEASUREMENT_TIME + L_MEASUREMENT_TIME + OFFSET_LOCK_TIME
+                        + 2 * CALIB_SCAN_DISTANCE / CALIB_SCAN_OMEGA)
+
+
+# not in the firmware: how long the board takes from reset until it answers on USB again
+# (bootloader, clock and USB enumeration). Assumed; the host must wait for it anyway.
+BOOT_TIME = 1.5
+
+
+# configuration kept per axis in python (the rest lives in the kernel's C array)
+_AXIS_CONFIG_KEYS = ("control_mode", "cpr", "pole_pairs", "motor_type", "motor_pre_calibrated",
+                     "encoder_pre_calibrated", "use_index", "direction", "trap_vel_limit",
+                     "trap_accel_limit", "trap_decel_limit", "startup_motor_calibration",
+                     "startup_encoder_offset_calibration", "startup_closed_loop_control")
+
+
+# slots of the kernel's C array that are volatile (inputs, leglib's abort bound, state)
+_C_VOLATILE = (L.C_INPUT_POS, L.C_INPUT_VEL, L.C_INPUT_TORQUE, L.C_ABORT_ERROR, L.C_COUNT_OFFSET,
+               L.C_CAL_VEL, L.C_CAL_RAMP) + tuple(range(L.C_TT_XI, L.C_TT_YACC + 1))
+
+
+class VirtualODrive:
+    """The virtual ODrive. Build it with :func:`leglib.device.session.connect` (backend
+    ``"virtual"``) or directly.
+
+    Parameters
+    ----------
+    plant, config : the simulated leg and the ODrive's configuration (Listing 7.1; the
+        device itself starts from the firmware's defaults where the two differ: brake
+        resistor, cpr, pole pairs)
+    seed : noise seed; the same seed gives the same measurements
+    realtime : pace the virtual clock to the wall clock
+    firmware : "0.5.6" (default) or "0.5.1"
+    disconnect_after : raise :class:`DeviceLostError` from the N-th transaction on (tests)
+    noise : encoder and current noise on (default) or off
+    payload_off_for_calibration : a plant's foot payload is taken off while an axis
+        calibrates and put back afterwards, as it must be on the bench: the encoder offset
+        scan at ``calibration_current`` cannot carry a loaded leg and fails the CPR check.
+        False keeps it on (the device's failure, for tests).
+    """
+
+    def __init__(self, plant: PlantParams | str = "default", config: OdriveConfig | str = "thesis",
+                 seed: int = 0, realtime: bool = False, firmware: str = "0.5.6",
+                 disconnect_after: int | None = None, noise: bool = True,
+                 payload_off_for_calibration: bool = True):
+        if not isinstance(firmware, str) or firmware not in FIRMWARES:
+            hint = (" (an ODrive v3.6 has no 0.6 firmware: 0.6.x is for ODrive Pro, S1 and Micro)"
+                    if str(firmware).startswith("0.6") else "")
+            raise ValueError(f"firmware must be one of {FIRMWARES}, got {firmware!r}{hint}")
+        self.boot_count = 0
+        self.twin = Twin(plant, config, batch=1, seed=seed, noise=noise)
+        self.payload_off_for_calibration = bool(payload_off_for_calibration)
+        self.firmware = firmware
+        self.fw_revision = int(firmware.split(".")[2])
+        self.realtime = bool(realtime)
+        self.disconnect_after = disconnect_after
+        self.transactions = 0
+        self.lost = False
+        self.saved_configuration = None
+        self._rng = np.random.default_rng(seed)
+        # where electrical angle 0 holds each rotor, as a fraction of a pole pitch (the
+        # magnets' offset to the encoder at power-up is arbitrary: the lock makes the rotor
+        # jump by up to half a pitch, 5.5 deg of joint)
+        self._magnet_offset = self._rng.random(2)
+        self.st = self.twin.rest_state()
+        self._pending = 0.0
+        self._t0_wall = _time.monotonic()
+        self._handle_boot = 0
+        self._factory_defaults()
+        self._factory = self._config_snapshot()
+        self._boot()
+        self._tree = self._build_tree()
+
+    # -- configuration, boot and reboot ------------------------------------------------
+    def _factory_defaults(self):
+        """The firmware's defaults (a fresh board), then nothing saved."""
+        C = self.st.C
+        C[0, :, L.C_POS_GAIN] = 20.0
+        C[0, :, L.C_VEL_GAIN] = 1.0 / 6.0
+        C[0, :, L.C_VEL_INT_GAIN] = 1.0 / 3.0
+        C[0, :, L.C_WD_ENABLE] = 0.0
+        C[0, :, L.C_WD_TIMEOUT] = 0.0
+        C[0, :, L.C_VEL_INT_LIMIT] = np.inf
+        C[0, :, L.C_INPUT_MODE] = INPUT_MODE_PASSTHROUGH
+        C[0, :, L.C_FILTER_BW] = 2.0
+        C[0, :, L.C_CAL_CURRENT] = 10.0
+        C[0, :, L.C_INT_RESET_TORQUE] = 1.0
+        v056 = self.firmware != "0.5.1"
+        C[0, 0, L.C_BRAKE_ON] = 0.0 if v056 else 1.0        # odrive_main.h:82 (0.5.2+)
+        C[0, 0, L.C_BRAKE_R] = 2.0                          # DEFAULT_BRAKE_RESISTANCE (v3.x)
+        C[0, 0, L.C_MAX_REGEN] = 0.0
+        C[0, 0, L.C_DC_MAX_POS] = np.inf
+        C[0, 0, L.C_DC_MAX_NEG] = -0.01                     # odrive_main.h:111
+        C[0, 0, L.C_VBUS] = 24.0
+        C[0, 0, L.C_REGEN_ERR_STYLE] = 0.0 if v056 else 1.0
+        self._board = {"enable_brake_resistor": not v056}
+        self._axis = []
+        for a in range(2):
+            self._axis.append({
+                "control_mode": 3, "cpr": 8192, "pole_pairs": 7, "motor_type": 0,
+                "motor_pre_calibrated": False, "encoder_pre_calibrated": False, "use_index": False,
+                "direction": 0, "trap_vel_limit": 2.0, "trap_accel_limit": 0.5, "trap_decel_limit": 0.5,
+                "startup_motor_calibration": False, "startup_encoder_offset_calibration": False,
+                "startup_closed_loop_control": False,
+            })
+
+    def _config_snapshot(self) -> dict:
+        C = self.st.C[0].copy()
+        C[:, list(_C_VOLATILE)] = 0.0          # inputs and state are not configuration
+        return {"C": C, "axes": [{k: ax[k] for k in _AXIS_CONFIG_KEYS} for ax in self._axis],
+                "board": dict(self._board)}
+
+    def _boot(self):
+        """Power-up or reset: volatile state from scratch, the saved configuration loaded."""
+        saved = self.saved_configuration if self.saved_configuration is not None else self._factory
+        self.st.C[0] = saved["C"]
+        for ax, cfg in zip(self._axis, saved["axes"]):
+            ax.update(cfg)
+        self._board.update(saved["board"])
+        st = self.st
+        st.AI[0, :, :] = 0
+        st.AI[0, :, L.I_TRAJ_DONE] = 1
+        st.AS[0, :, L.S_INTEGRATOR] = 0.0
+        st.AS[0, :, L.S_IQ] = 0.0
+        st.AS[0, :, L.S_IQ_MEAS] = 0.0
+        st.ABORT[...] = 0
+        st.C[0, :, L.C_INPUT_POS] = 0.0
+        st.C[0, :, L.C_INPUT_VEL] = 0.0
+        st.C[0, :, L.C_INPUT_TORQUE] = 0.0
+        st.C[0, :, L.C_ABORT_ERROR] = 0.0
+        st.C[0, :, L.C_CAL_VEL] = 0.0
+        # incremental encoder: the count restarts at 0 wherever the rotor is
+        self._rezero_counts()
+        # the brake resistor is armed at start-up when enabled (low_level.cpp:181-183)
+        self._brake_armed = bool(self._board["enable_brake_resistor"])
+        st.C[0, 0, L.C_BRAKE_ON] = 1.0 if self._brake_armed else 0.0
+        for a, ax in enumerate(self._axis):
+            ax.update({"requested_state": AXIS_STATE_UNDEFINED, "pending": None, "state": AXIS_STATE_IDLE,
+                       "chain": [], "phase": None, "phase_end": None,
+                       "motor_calibrated": bool(ax["motor_pre_calibrated"]),   # motor.cpp:306
+                       # encoder.cpp:19-30: pre_calibrated makes an incremental encoder ready
+                       # only after its index is found; this leg has no index
+                       "encoder_ready": False, "encoder_error": 0, "scan_start": None})
+            # axis.cpp:77-81: apply_config feeds the watchdog at boot
+            self._feed(a)
+
+    def _rezero_counts(self):
+        st = self.st
+        for a in range(2):
+            j = self.twin.axes.joint_of_axis(a)
+            ax_map = self.twin.axes
+            turns = float(self.twin.encoder_turns(st, j)[0])
+            raw = math.floor(turns * ax_map.cpr + 0.5)
+            st.C[0, a, L.C_COUNT_OFFSET] = -raw
+            st.AI[0, a, L.I_COUNTS] = 0
+            st.AS[0, a, L.S_COUNT_F] = 0.0
+            st.AS[0, a, L.S_POS_EST] = 0.0
+            st.AS[0, a, L.S_VEL_EST] = 0.0
+
+    def reboot(self) -> None:
+        """Reset the board (what ``save_configuration`` and ``reboot()`` do on the device):
+        the motors are disarmed, volatile state is lost (calibration unless pre-calibrated,
+        encoder counts, errors, states, watchdog timers), the saved configuration is loaded,
+        and handles made before raise :class:`DeviceLostError`. The device answers again
+        after :data:`BOOT_TIME` s of virtual time; :meth:`reconnect` waits for that."""
+        self.st.AI[0, :, L.I_MODE] = L.MODE_IDLE
+        self.boot_count += 1
+        self._boot()
+        self._booted_at = self.time
+        self._tree = self._build_tree()
+
+    def handle(self):
+        """The object tree of the current boot (what a new USB connection gives)."""
+        self._check_link()
+        self._handle_boot = self.boot_count
+        return self._tree
+
+    def reconnect(self, serial_number: int | None = None) -> "VirtualODrive":
+        """Wait until the board answers after a reboot and connect again (by serial number,
+        as ``odrive.find_any(serial_number=...)``); returns the device."""
+        if serial_number is not None and int(serial_number) != self._serial():
+            raise DeviceLostError(f"no ODrive with serial number {int(serial_number):012X}")
+        booted = getattr(self, "_booted_at", None)
+        if booted is not None and self.time < booted + BOOT_TIME:
+            self.sleep(booted + BOOT_TIME - self.time + 2 * self.twin.dt)
+        self._check_link()
+        self._handle_boot = self.boot_count
+        return self
+
+    def _serial(self) -> int:
+        return 0x3A7F1E2D4B00 + self.twin.seed
+
+    # -- clock and transactions --------------------------------------------------------
+    @property
+    def time(self) -> float:
+        """Virtual time since power-up [s]."""
+        return float(self.st.X[0, 4])
+
+    def _advance(self, seconds: float, progress: bool = False) -> None:
+        # whole ticks only; the remainder is carried, so many short waits add up exactly.
+        # With ``progress`` a positive wait always moves at least one tick (borrowing it),
+        # so a host loop waiting for a sample time cannot spin on a rounding residue.
+        dt = self.twin.dt
+        self._pending += max(seconds, 0.0)
+        n = int(self._pending / dt + 1e-9)
+        if progress and n == 0 and seconds > 0:
+            n = 1
+        self._pending -= n * dt
+        # run up to each state-machine event, handle it, go on
+        while True:
+            self._process_events()
+            te = self._next_event()
+            if n <= 0:
+                break
+            k = n if te is None else max(1, min(n, int(math.ceil((te - self.time) / dt - 1e-9))))
+            self.twin.run(self.st, ticks=k)
+            n -= k
+        self._process_events()
+
+    def sleep(self, seconds: float) -> None:
+        """Let ``seconds`` of (virtual) time pass; in real-time mode also wait."""
+        if not math.isfinite(seconds):
+            raise ValueError(f"sleep: seconds must be finite, got {seconds!r}")
+        self._check_link()
+        self._advance(seconds, progress=True)
+        if self.realtime:
+            self._pace()
+
+    def set_realtime(self, on: bool) -> None:
+        """Pace the virtual clock to the wall clock from now on (or stop pacing)."""
+        self.realtime = bool(on)
+        self._t0_wall = _time.monotonic() - self.time
+
+    # the virtual clock may run this far ahead of the wall clock before the host is made to
+    # wait: sleeping for every 0.4 ms transaction would cost more in the OS's sleep overshoot
+    PACE_SLACK = 1e-3
+
+    def _pace(self):
+        ahead = self.time - (_time.monotonic() - self._t0_wall)
+        if ahead > self.PACE_SLACK:
+            _time.sleep(ahead)
+        elif ahead < -self.twin.dt:
+            self._advance(-ahead)
+
+    def _check_link(self):
+        if self.lost:
+            raise DeviceLostError("virtual ODrive: device lost (injected disconnect)")
+        if self.disconnect_after is not None and self.transactions >= self.disconnect_after:
+            self.lost = True
+            raise DeviceLostError(f"virtual ODrive: device lost after {self.transactions} transactions "
+                                  f"(injected disconnect)")
+
+    def _transaction(self) -> None:
+        self._check_link()
+        booted = getattr(self, "_booted_at", None)
+        if booted is not None and self.time < booted + BOOT_TIME:
+            raise DeviceLostError("virtual ODrive: the board is rebooting and does not answer yet")
+        self.transactions += 1
+        p = self.twin.plant
+        latency = p.usb_latency * (1.0 + p.usb_jitter * (self._rng.random() - 0.5) * 2.0)
+        self._advance(latency)
+        if self.realtime:
+            self._pace()
+
+    # -- firmware state machine --------------------------------------------------------
+    def _next_event(self):
+        times = []
+        for ax in self._axis:
+            if ax["pending"] is not None:
+                times.append(ax["pending"][1])
+            if ax["phase_end"] is not None:
+                times.append(ax["phase_end"])
+        return min(times) if times else None
+
+    def _process_events(self):
+        now = self.time + 1e-12
+        st = self.st
+        for a, ax in enumerate(self._axis):
+            # a fault (or leglib's abort) disarmed the motor: the state ends, chain cleared
+            if ax["state"] == AXIS_STATE_CLOSED_LOOP_CONTROL and st.AI[0, a, L.I_MODE] == L.MODE_IDLE:
+                ax["state"], ax["chain"] = AXIS_STATE_IDLE, []
+            if ax["phase"] is not None and st.AI[0, a, L.I_MODE] == L.MODE_IDLE:
+                self._fail(a)  # calibration disarmed by a fault (watchdog, bus)
+            if ax["pending"] is not None and now >= ax["pending"][1]:
+                self._consume_request(a, ax["pending"][0])
+            while ax["phase_end"] is not None and now >= ax["phase_end"]:
+                self._calibration_step(a)
+        if self.payload_off_for_calibration and self.twin.plant.payload_mass > 0:
+            calibrating = any(ax["state"] in (AXIS_STATE_MOTOR_CALIBRATION, AXIS_STATE_ENCODER_OFFSET_CALIBRATION)
+                              for ax in self._axis)
+            if calibrating == self.twin.payload_mounted:
+                self.twin.mount_payload(not calibrating)
+        # the trajectory's end drops the axis into position control (controller.cpp:255-262)
+        for a, ax in enumerate(self._axis):
+            if st.AI[0, a, L.I_MODE] == L.MODE_POSITION and ax["state"] == AXIS_STATE_CLOSED_LOOP_CONTROL:
+                ax["control_mode"] = 3
+
+    def _request_state(self, a: int, value: int):
+        # axis.cpp:455-488: the axis thread picks the request up on its next iteration
+        t = self.time
+        consume = (math.floor(t / AXIS_THREAD_PERIOD + 1e-9) + 1) * AXIS_THREAD_PERIOD
+        self._axis[a]["pending"] = (value, consume)
+        self._axis[a]["requested_state"] = value
+
+    def _consume_request(self, a: int, value: int):
+        ax = self._axis[a]
+        ax["pending"] = None
+        ax["requested_state"] = AXIS_STATE_UNDEFINED
+        self.st.AI[0, a, L.I_AXIS_ERR] &= ~AXIS_ERROR_INVALID_STATE   # axis.cpp:487
+        # the running state ends (handlers exit on a new request): disarm
+        self._disarm(a)
+        ax["phase"], ax["phase_end"] = None, None
+        if value == AXIS_STATE_STARTUP_SEQUENCE:
+            chain = ([AXIS_STATE_MOTOR_CALIBRATION] if ax["startup_motor_calibration"] else []) + \
+                    ([AXIS_STATE_ENCODER_OFFSET_CALIBRATION] if ax["startup_encoder_offset_calibration"] else []) + \
+                    ([AXIS_STATE_CLOSED_LOOP_CONTROL] if ax["startup_closed_loop_control"] else [])
+        elif value == AXIS_STATE_FULL_CALIBRATION_SEQUENCE:
+            chain = [AXIS_STATE_MOTOR_CALIBRATION] + \
+                    ([AXIS_STATE_ENCODER_INDEX_SEARCH] if ax["use_index"] else []) + \
+                    [AXIS_STATE_ENCODER_OFFSET_CALIBRATION]
+        elif value == AXIS_STATE_IDLE:
+            chain = []
+        else:
+            chain = [value]
+        ax["chain"] = chain + [AXIS_STATE_IDLE]
+        self._next_task(a)
+
+    def _next_task(self, a: int):
+        ax = self._axis[a]
+        state = ax["chain"].pop(0) if ax["chain"] else AXIS_STATE_IDLE
+        ax["state"] = state
+        if state == AXIS_STATE_IDLE:
+            ax["chain"] = []
+        elif state == AXIS_STATE_MOTOR_CALIBRATION:
+            self._start_motor_calibration(a)
+        elif state == AXIS_STATE_ENCODER_OFFSET_CALIBRATION:
+            self._start_offset_calibration(a)
+        elif state == AXIS_STATE_CLOSED_LOOP_CONTROL:
+            self._enter_closed_loop(a)
+        else:
+            # index search, homing, lock-in spin, ... are not simulated: refused (stricter)
+            self._invalid(a)
+
+    def _invalid(self, a):
+        self.st.AI[0, a, L.I_AXIS_ERR] |= AXIS_ERROR_INVALID_STATE   # axis.cpp:586-589
+        self._fail(a)
+
+    def _fail(self, a):
+        ax = self._axis[a]
+        self._disarm(a)
+        ax["phase"], ax["phase_end"], ax["chain"] = None, None, []
+        ax["state"] = AXIS_STATE_IDLE
+
+    def _disarm(self, a):
+        st = self.st
+        st.AI[0, a, L.I_MODE] = L.MODE_IDLE
+        st.AS[0, a, L.S_IQ] = 0.0
+        st.C[0, a, L.C_CAL_VEL] = 0.0
+
+    def _arm(self, a) -> bool:
+        """motor.cpp:195-217: refused (motor error) while an enabled brake resistor is not
+        armed; the axis error check of the next tick disarms an axis with an error."""
+        if self._board["enable_brake_resistor"] and not self._brake_armed:
+            self.st.AI[0, a, L.I_MOTOR_ERR] |= MOTOR_ERROR_BRAKE_RESISTOR_DISARMED
+            return False
+        if self.st.AI[0, a, L.I_AXIS_ERR]:
+            return False
+        return True
+
+    # calibration as motion --------------------------------------------------------
+    def _lock_position(self, a) -> float:
+        """Motor turns where electrical angle 0 holds the rotor: the alignment nearest to
+        where it is now (the kernel's frame)."""
+        j = self.twin.axes.joint_of_axis(a)
+        turns = float(self.twin.axes.motor_turns(self.twin.motor_angle(self.st, j)[0], j))
+        pp = self.twin.motor.pole_pairs
+        off = self._magnet_offset[a] / pp
+        return off + round((turns - off) * pp) / pp
+
+    def _start_motor_calibration(self, a):
+        ax, st = self._axis[a], self.st
+        if not self._arm(a):
+            return self._fail(a)
+        st.AS[0, a, L.S_CAL_POS] = self._lock_position(a)
+        st.C[0, a, L.C_CAL_VEL] = 0.0
+        st.AS[0, a, L.S_CAL_I] = 0.0
+        st.C[0, a, L.C_CAL_RAMP] = st.C[0, a, L.C_CAL_CURRENT] / (3.0 * self.twin.motor.phase_resistance / 1.0)
+        st.AI[0, a, L.I_MODE] = L.MODE_CALIB
+        ax["motor_calibrated"] = False
+        ax["phase"], ax["phase_end"] = "resistance", self.time + R_MEASUREMENT_TIME
+
+    def _start_offset_calibration(self, a):
+        ax, st = self._axis[a], self.st
+        if not ax["motor_calibrated"]:
+            return self._invalid(a)
+        # encoder.cpp:344: shadow_count := count_in_cpr (the count re-referenced into [0, cpr))
+        cpr = ax["cpr"]
+        count = int(st.AI[0, a, L.I_COUNTS])
+        shift = (count % cpr) - count
+        st.C[0, a, L.C_COUNT_OFFSET] += shift
+        st.AI[0, a, L.I_COUNTS] += shift
+        st.AS[0, a, L.S_COUNT_F] += shift
+        st.AS[0, a, L.S_POS_EST] += shift / self.twin.axes.cpr
+        ax["encoder_ready"] = False
+        if not self._arm(a):
+            return self._fail(a)
+        st.AS[0, a, L.S_CAL_POS] = self._lock_position(a)   # phase wrap(-8 pi) = 0
+        st.C[0, a, L.C_CAL_VEL] = 0.0
+        st.AS[0, a, L.S_CAL_I] = 0.0
+        st.C[0, a, L.C_CAL_RAMP] = OFFSET_RAMP_PER_A * st.C[0, a, L.C_CAL_CURRENT]
+        st.AI[0, a, L.I_MODE] = L.MODE_CALIB
+        ax["phase"], ax["phase_end"] = "lock", self.time + OFFSET_LOCK_TIME
+
+    def _calibration_step(self, a):
+        ax, st = self._axis[a], self.st
+        phase = ax["phase"]
+        scan_time = CALIB_SCAN_DISTANCE / CALIB_SCAN_OMEGA
+        scan_vel = CALIB_SCAN_OMEGA / (2 * math.pi * self.twin.motor.pole_pairs)  # turn/s of the rotor
+        if phase == "resistance":
+            # inductance measurement: alternating voltage, no net torque: the rotor is free
+            ax["saved_cal_current"] = float(st.C[0, a, L.C_CAL_CURRENT])
+            st.C[0, a, L.C_CAL_CURRENT] = 0.0
+            ax["phase"], ax["phase_end"] = "inductance", ax["phase_end"] + L_MEASUREMENT_TIME
+        elif phase == "inductance":
+            st.C[0, a, L.C_CAL_CURRENT] = ax.pop("saved_cal_current")
+            self._disarm(a)
+            ax["motor_calibrated"] = True              # motor.cpp:509
+            ax["phase"], ax["phase_end"] = None, None
+            self._next_task(a)
+        elif phase == "lock":
+            ax["scan_start"] = int(st.AI[0, a, L.I_COUNTS])
+            st.C[0, a, L.C_CAL_VEL] = scan_vel
+            ax["phase"], ax["phase_end"] = "forward", ax["phase_end"] + scan_time
+        elif phase == "forward":
+            count = int(st.AI[0, a, L.I_COUNTS])
+            start = ax["scan_start"]
+            if abs(count - start) <= 8:                # encoder.cpp:412-423
+                ax["encoder_error"] |= ENCODER_ERROR_NO_RESPONSE
+                st.AI[0, a, L.I_AXIS_ERR] |= AXIS_ERROR_ENCODER_FAILED
+                return self._fail(a)
+            ax["direction"] = 1 if count > start else -1
+            expected = CALIB_SCAN_DISTANCE / (ax["pole_pairs"] * 2 * math.pi / ax["cpr"])
+            if abs(abs(count - start) - expected) / expected > CALIB_RANGE:   # encoder.cpp:425-433
+                ax["encoder_error"] |= ENCODER_ERROR_CPR_POLEPAIRS_MISMATCH
+                st.AI[0, a, L.I_AXIS_ERR] |= AXIS_ERROR_ENCODER_FAILED
+                return self._fail(a)
+            st.C[0, a, L.C_CAL_VEL] = -scan_vel
+            ax["phase"], ax["phase_end"] = "backward", ax["phase_end"] + scan_time
+        elif phase == "backward":
+            self._disarm(a)
+            ax["encoder_ready"] = True                 # encoder.cpp:461
+            ax["phase"], ax["phase_end"] = None, None
+            self._next_task(a)
+
+    def _enter_closed_loop(self, a):
+        ax, st = self._axis[a], self.st
+        # axis.cpp:569-575: needs a calibrated motor and an encoder with a direction
+        if not ax["motor_calibrated"] or not ax["encoder_ready"] or (self.firmware != "0.5.1" and ax["direction"] == 0):
+            return self._invalid(a)
+        self._feed(a)                                  # axis.cpp:577
+        if not self._arm(a):
+            return self._fail(a)
+        # controller reset at arming (motor.cpp:202, controller.cpp:12-18)
+        st.AS[0, a, L.S_VEL_SP] = 0.0
+        st.AS[0, a, L.S_TQ_SP] = 0.0
+        st.AS[0, a, L.S_INTEGRATOR] = 0.0
+        st.AS[0, a, L.S_OSC:L.S_OSC + L.N_OSC] = 0.0
+        # axis.cpp:290-291: control_mode_updated, input_pos_updated
+        if ax["control_mode"] >= 3:
+            pe = float(st.AS[0, a, L.S_POS_EST])
+            st.AS[0, a, L.S_POS_SP] = pe
+            st.C[0, a, L.C_INPUT_POS] = pe
+        self._plan_trajectory(a)
+        st.AI[0, a, L.I_MODE] = ax["control_mode"]
+
+    def _plan_trajectory(self, a):
+        """controller.cpp:31-38 move_to_pos with trapTraj.cpp planTrapezoidal, from the
+        current setpoints to input_pos."""
+        ax, st = self._axis[a], self.st
+        if int(st.C[0, a, L.C_INPUT_MODE]) != INPUT_MODE_TRAP_TRAJ:
+            return
+        Xf, Xi, Vi = float(st.C[0, a, L.C_INPUT_POS]), float(st.AS[0, a, L.S_POS_SP]), float(st.AS[0, a, L.S_VEL_SP])
+        Vmax, Amax, Dmax = ax["trap_vel_limit"], ax["trap_accel_limit"], ax["trap_decel_limit"]
+        dX = Xf - Xi
+        stop_dist = Vi * Vi / (2.0 * Dmax)
+        dXstop = math.copysign(stop_dist, Vi)
+        s = -1.0 if math.copysign(1.0, dX - dXstop) < 0 else 1.0
+        Ar, Dr, Vr = s * Amax, -s * Dmax, s * Vmax
+        if s * Vi > s * Vr:
+            Ar = -s * Amax
+        Ta = (Vr - Vi) / Ar
+        Td = -Vr / Dr
+        dXmin = 0.5 * Ta * (Vr + Vi) + 0.5 * Td * Vr
+        if s * dX < s * dXmin:
+            Vr = s * math.sqrt(max((Dr * Vi * Vi + 2 * Ar * Dr * dX) / (Dr - Ar), 0.0))
+            Ta = max(0.0, (Vr - Vi) / Ar)
+            Td = max(0.0, -Vr / Dr)
+            Tv = 0.0
+        else:
+            Tv = (dX - dXmin) / Vr
+        C = st.C[0, a]
+        C[L.C_TT_XI], C[L.C_TT_XF], C[L.C_TT_VI] = Xi, Xf, Vi
+        C[L.C_TT_AR], C[L.C_TT_VR], C[L.C_TT_DR] = Ar, Vr, Dr
+        C[L.C_TT_TA], C[L.C_TT_TV], C[L.C_TT_TD] = Ta, Tv, Td
+        C[L.C_TT_YACC] = Xi + Vi * Ta + 0.5 * Ar * Ta * Ta
+        st.AS[0, a, L.S_TT_T] = 0.0
+        st.AI[0, a, L.I_TRAJ_DONE] = 0
+
+    # -- property setters with firmware side effects ------------------------------------
+    def _set_control_mode(self, a: int, value: int):
+        if value not in CONTROL_MODES:
+            raise ValueError(f"axis{a}.controller.config.control_mode: unsupported value {value}")
+        ax, st = self._axis[a], self.st
+        ax["control_mode"] = value
+        if st.AI[0, a, L.I_MODE] not in (L.MODE_IDLE, L.MODE_CALIB):
+            # controller.cpp:115-128 control_mode_updated
+            if value >= 3:
+                pe = float(st.AS[0, a, L.S_POS_EST])
+                st.AS[0, a, L.S_POS_SP] = pe
+                st.C[0, a, L.C_INPUT_POS] = pe
+            st.AI[0, a, L.I_MODE] = value
+
+    def _set_input_mode(self, a: int, value: int):
+        if value not in INPUT_MODES:
+            raise ValueError(f"axis{a}.controller.config.input_mode: value {value} is not simulated "
+                             f"(supported: INACTIVE 0, PASSTHROUGH 1, POS_FILTER 3, TRAP_TRAJ 5)")
+        self.st.C[0, a, L.C_INPUT_MODE] = value
+
+    def _set_input_pos(self, a: int, value: float):
+        self.st.C[0, a, L.C_INPUT_POS] = value
+        if self.st.AI[0, a, L.I_MODE] not in (L.MODE_IDLE, L.MODE_CALIB):
+            self._plan_trajectory(a)    # input_pos_updated: planned on the next tick (controller.cpp:236-239)
+
+    def _feed(self, a):
+        # axis.cpp:165-168: reload with watchdog_timeout * control-loop frequency
+        timeout = min(max(float(self.st.C[0, a, L.C_WD_TIMEOUT]), 0.0), 1e6)
+        self.st.AS[0, a, L.S_WD_TIMER] = float(int(timeout * self.twin.config.loop_frequency))
+
+    def _clear_errors(self, a=None):
+        """odrv.clear_errors (main.cpp:236-249) or axis.clear_errors (fw-v0.5.1 axis.hpp:108-116)."""
+        st = self.st
+        for i in ((0, 1) if a is None else (a,)):
+            st.AI[0, i, L.I_AXIS_ERR] = 0
+            st.AI[0, i, L.I_CTRL_ERR] = 0
+            st.AI[0, i, L.I_MOTOR_ERR] = 0
+            self._axis[i]["encoder_error"] = 0
+        if a is None:
+            st.AI[0, 0, L.I_SYS_ERR] = 0
+            if self._board["enable_brake_resistor"]:
+                self._brake_armed = True
+                st.C[0, 0, L.C_BRAKE_ON] = 1.0
+
+    def _set_enable_brake_resistor(self, value: bool):
+        # the flag only; the resistor is armed at boot or by clear_errors (main.cpp:246-248,
+        # low_level.cpp:181-183)
+        self._board["enable_brake_resistor"] = bool(value)
+        if not value:
+            self._brake_armed = False
+            self.st.C[0, 0, L.C_BRAKE_ON] = 0.0
+
+    def _save_configuration(self):
+        if self.firmware == "0.5.1":
+            # fw-v0.5.1 main.cpp:43-61: stores, neither refuses nor reboots
+            self.saved_configuration = self._config_snapshot()
+            return None
+        # main.cpp:159-184
+        if any(self.st.AI[0, a, L.I_MODE] != L.MODE_IDLE for a in range(2)):
+            return False
+        self.saved_configuration = self._config_snapshot()
+        self.reboot()
+        raise DeviceLostError("virtual ODrive: save_configuration rebooted the board; reconnect "
+                              "(by serial number)")
+
+    def _reboot_call(self):
+        self.reboot()
+        raise DeviceLostError("virtual ODrive: reboot() reset the board; reconnect (by serial number)")
+
+    # -- the tree ----------------------------------------------------------------------
+    def _cfg_prop(self, a, index, kind=float, check=None):
+        st = self.st
+
+        def get():
+            return float(st.C[0, a, index])
+
+        def set_(v):
+            if check is not None:
+                check(v)
+            st.C[0, a, index] = v
+        return _Prop(get, set_, kind)
+
+    def _axis_tree(self, a: int) -> _Node:
+        st, ax, dev = self.st, self._axis[a], self
+        path = f"odrv.axis{a}"
+        v056 = self.firmware != "0.5.1"
+
+        def positive(name):
+            def check(v):
+                if not v > 0:
+                    raise ValueError(f"{path}.{name} must be positive, got {v}")
+            return check
+
+        def err_prop(index):
+            def set_(v):
+                st.AI[0, a, index] = v
+            return _Prop(lambda: int(st.AI[0, a, index]), set_, int)
+
+        def ax_prop(key, kind, check=None):
+            def set_(v):
+                if check is not None:
+                    check(v)
+                ax[key] = v
+            return _Prop(lambda: ax[key], set_, kind)
+
+        def positive_int(name):
+            def check(v):
+                if v <= 0:
+                    raise ValueError(f"{path}.{name} must be positive, got {v}")
+            return check
+
+        ctrl_cfg_props = {
+            "control_mode": _Prop(lambda: ax["control_mode"], lambda v: self._set_control_mode(a, v), int),
+            "input_mode": _Prop(lambda: int(st.C[0, a, L.C_INPUT_MODE]), lambda v: self._set_input_mode(a, v), int),
+            "pos_gain": self._cfg_prop(a, L.C_POS_GAIN),
+            "vel_gain": self._cfg_prop(a, L.C_VEL_GAIN),
+            "vel_integrator_gain": self._cfg_prop(a, L.C_VEL_INT_GAIN),
+            "vel_limit": self._cfg_prop(a, L.C_VEL_LIMIT, check=positive("controller.config.vel_limit")),
+            "vel_limit_tolerance": self._cfg_prop(a, L.C_VEL_TOL, check=positive("controller.config.vel_limit_tolerance")),
+            "input_filter_bandwidth": self._cfg_prop(a, L.C_FILTER_BW, check=positive("controller.config.input_filter_bandwidth")),
+        }
+        if v056:   # 0.5.4+
+            ctrl_cfg_props["vel_integrator_limit"] = self._cfg_prop(a, L.C_VEL_INT_LIMIT, check=positive("controller.config.vel_integrator_limit"))
+        controller = _Node(dev, path + ".controller", {
+            "input_pos": _Prop(lambda: float(st.C[0, a, L.C_INPUT_POS]), lambda v: self._set_input_pos(a, v)),
+            "input_vel": self._cfg_prop(a, L.C_INPUT_VEL),
+            "input_torque": self._cfg_prop(a, L.C_INPUT_TORQUE),
+            "pos_setpoint": _Prop(lambda: float(st.AS[0, a, L.S_POS_SP])),
+            "vel_setpoint": _Prop(lambda: float(st.AS[0, a, L.S_VEL_SP])),
+            "trajectory_done": _Prop(lambda: bool(st.AI[0, a, L.I_TRAJ_DONE]), None, bool),
+            "error": err_prop(L.I_CTRL_ERR),
+            "vel_integrator_torque": _Prop(lambda: float(st.AS[0, a, L.S_INTEGRATOR]),
+                                           lambda v: st.AS[0, a].__setitem__(L.S_INTEGRATOR, v)),
+        }, {"config": _Node(dev, path + ".controller.config", ctrl_cfg_props)})
+
+        def set_motor_pre_calibrated(v):
+            # motor.hpp:54-57
+            ax["motor_pre_calibrated"] = v
+            ax["motor_calibrated"] = ax["motor_calibrated"] or v
+
+        def set_encoder_pre_calibrated(v):
+            # encoder.cpp:130-138: an incremental encoder without a found index cannot be
+            # pre-calibrated: the flag reads back False
+            ax["encoder_pre_calibrated"] = bool(v) and ax["encoder_ready"] and ax["use_index"] and False
+
+        def set_use_index(v):
+            if v:
+                raise ValueError(f"{path}.encoder.config.use_index: the index search is not simulated "
+                                 f"(this leg's encoders are used without index)")
+            ax["use_index"] = False
+
+        mcfg_props = {
+            "pole_pairs": ax_prop("pole_pairs", int, positive_int("motor.config.pole_pairs")),
+            "torque_constant": self._cfg_prop(a, L.C_KT, check=positive("motor.config.torque_constant")),
+            "motor_type": ax_prop("motor_type", int),
+            "current_control_bandwidth": self._cfg_prop(a, L.C_CURRENT_BW, check=positive("motor.config.current_control_bandwidth")),
+            "current_lim": self._cfg_prop(a, L.C_CURRENT_LIM, check=positive("motor.config.current_lim")),
+            "calibration_current": self._cfg_prop(a, L.C_CAL_CURRENT, check=positive("motor.config.calibration_current")),
+            "pre_calibrated": _Prop(lambda: ax["motor_pre_calibrated"], set_motor_pre_calibrated, bool),
+            "phase_resistance": _Prop(lambda: self.twin.motor.phase_resistance if ax["motor_calibrated"] else 0.0),
+        }
+        motor = _Node(dev, path + ".motor", {
+            "error": err_prop(L.I_MOTOR_ERR),
+            "is_calibrated": _Prop(lambda: ax["motor_calibrated"], None, bool),
+            "is_armed": _Prop(lambda: bool(st.AI[0, a, L.I_MODE] != L.MODE_IDLE), None, bool),
+        }, {"config": _Node(dev, path + ".motor.config", mcfg_props),
+            "current_control": _Node(dev, path + ".motor.current_control", {
+                "Iq_measured": _Prop(lambda: float(st.AS[0, a, L.S_IQ_MEAS])),
+                "Iq_setpoint": _Prop(lambda: float(st.AS[0, a, L.S_IQ]))})})
+        enc_cfg_props = {
+            "cpr": ax_prop("cpr", int, positive_int("encoder.config.cpr")),
+            "bandwidth": self._cfg_prop(a, L.C_ENCODER_BW, check=positive("encoder.config.bandwidth")),
+            "pre_calibrated": _Prop(lambda: ax["encoder_pre_calibrated"], set_encoder_pre_calibrated, bool),
+            "use_index": _Prop(lambda: ax["use_index"], set_use_index, bool),
+            "calib_range": _Prop(lambda: CALIB_RANGE),
+            "calib_scan_distance": _Prop(lambda: CALIB_SCAN_DISTANCE),
+            "calib_scan_omega": _Prop(lambda: CALIB_SCAN_OMEGA),
+        }
+        if v056:
+            enc_cfg_props["direction"] = ax_prop("direction", int)
+        encoder = _Node(dev, path + ".encoder", {
+            "pos_estimate": _Prop(lambda: float(st.AS[0, a, L.S_POS_EST])),
+            "vel_estimate": _Prop(lambda: float(st.AS[0, a, L.S_VEL_EST])),
+            "shadow_count": _Prop(lambda: int(st.AI[0, a, L.I_COUNTS]), None, int),
+            "count_in_cpr": _Prop(lambda: int(st.AI[0, a, L.I_COUNTS]) % ax["cpr"], None, int),
+            "is_ready": _Prop(lambda: ax["encoder_ready"], None, bool),
+            "error": _Prop(lambda: ax["encoder_error"], lambda v: ax.__setitem__("encoder_error", v), int),
+        }, {"config": _Node(dev, path + ".encoder.config", enc_cfg_props)})
+        trap = _Node(dev, path + ".trap_traj", {}, {"config": _Node(dev, path + ".trap_traj.config", {
+            "vel_limit": ax_prop("trap_vel_limit", float, positive("trap_traj.config.vel_limit")),
+            "accel_limit": ax_prop("trap_accel_limit", float, positive("trap_traj.config.accel_limit")),
+            "decel_limit": ax_prop("trap_decel_limit", float, positive("trap_traj.config.decel_limit"))})})
+        axis_cfg = _Node(dev, path + ".config", {
+            "enable_watchdog": _Prop(lambda: bool(st.C[0, a, L.C_WD_ENABLE]),
+                                     lambda v: st.C[0, a].__setitem__(L.C_WD_ENABLE, 1.0 if v else 0.0), bool),
+            "watchdog_timeout": self._cfg_prop(a, L.C_WD_TIMEOUT),
+            "startup_motor_calibration": ax_prop("startup_motor_calibration", bool),
+            "startup_encoder_offset_calibration": ax_prop("startup_encoder_offset_calibration", bool),
+            "startup_closed_loop_control": ax_prop("startup_closed_loop_control", bool),
+        })
+        axis_props = {
+            "requested_state": _Prop(lambda: ax["requested_state"], lambda v: self._request_state(a, v), int),
+            "current_state": _Prop(lambda: ax["state"], None, int),
+            "error": err_prop(L.I_AXIS_ERR),
+        }
+        methods = {"watchdog_feed": lambda: self._feed(a)}
+        if not v056:
+            methods["clear_errors"] = lambda: self._clear_errors(a)   # fw-v0.5.1 axis.hpp:108
+        return _Node(dev, path, axis_props, {"controller": controller, "motor": motor, "encoder": encoder,
+                                             "trap_traj": trap, "config": axis_cfg}, methods)
+
+    def _build_tree(self) -> _Node:
+        st = self.st
+        v056 = self.firmware != "0.5.1"
+
+        def set_brake_resistance(v):
+            if not v > 0:
+                raise ValueError(f"odrv.config.brake_resistance must be positive, got {v}")
+            st.C[0, 0, L.C_BRAKE_R] = v
+
+        def c0(index):
+            def set_(v):
+                st.C[0, 0, index] = v
+            return _Prop(lambda: float(st.C[0, 0, index]), set_)
+
+        cfg_props = {
+            "brake_resistance": _Prop(lambda: float(st.C[0, 0, L.C_BRAKE_R]), set_brake_resistance),
+            "max_regen_current": c0(L.C_MAX_REGEN),
+            "dc_max_positive_current": c0(L.C_DC_MAX_POS),
+            "dc_max_negative_current": c0(L.C_DC_MAX_NEG),
+        }
+        if v056:
+            cfg_props["enable_brake_resistor"] = _Prop(lambda: self._board["enable_brake_resistor"],
+                                                       self._set_enable_brake_resistor, bool)
+        props = {
+            "vbus_voltage": _Prop(lambda: float(st.C[0, 0, L.C_VBUS]) + 0.05 * float(self._rng.standard_normal())),
+            "ibus": _Prop(lambda: float(st.AS[0, 0, L.S_IBUS])),
+            "brake_resistor_armed": _Prop(lambda: self._brake_armed, None, bool),
+            "serial_number": _Prop(self._serial, None, int),
+            "fw_version_major": _Prop(lambda: 0, None, int),
+            "fw_version_minor": _Prop(lambda: 5, None, int),
+            "fw_version_revision": _Prop(lambda: self.fw_revision, None, int),
+            "hw_version_major": _Prop(lambda: 3, None, int),
+            "hw_version_minor": _Prop(lambda: 6, None, int),
+        }
+        if v056:
+            def set_sys_err(v):
+                st.AI[0, 0, L.I_SYS_ERR] = v
+            props["error"] = _Prop(lambda: int(st.AI[0, 0, L.I_SYS_ERR]), set_sys_err, int)
+            props["brake_resistor_current"] = _Prop(lambda: float(st.AS[0, 0, L.S_BRAKE_I]))
+        methods = {"save_configuration": self._save_configuration, "reboot": self._reboot_call}
+        if v056:
+            methods["clear_errors"] = self._clear_errors                       # main.cpp:236
+        return _Node(self, "odrv", props, {
+            "axis0": self._axis_tree(0), "axis1": self._axis_tree(1),
+            "config": _Node(self, "odrv.config", cfg_props)}, methods)
+
+    # the tree's attributes are the device's (through the handle of the last connection)
+    def __getattr__(self, name):
+        if name.startswith("_") or name in ("twin", "st", "firmware", "realtime"):
+            raise AttributeError(name)
+        tree = self.__dict__.get("_tree")
+        if tree is None:
+            raise AttributeError(name)
+        if self._handle_boot != self.boot_count:
+            raise DeviceLostError(f"virtual ODrive: the board rebooted since this connection was made "
+                                  f"(boot {self._handle_boot} -> {self.boot_count}); reconnect")
+        return getattr(tree, name)
+
+    def __setattr__(self, name, value):
+        if name in ("axis0", "axis1", "config", "vbus_voltage", "error"):
+            if self._handle_boot != self.boot_count:
+                raise DeviceLostError("virtual ODrive: the board rebooted since this connection was made; reconnect")
+            setattr(self._tree, name, value)
+        else:
+            object.__setattr__(self, name, value)
+
+    def __dir__(self):
+        return dir(self._tree)
+
+    # -- whole experiments through the kernel (inputs known in advance) ------------------
+    def step_batch(self, gains, **kwargs) -> dict:
+        """Run Listing 7.4's step for each gain triple (see
+        :meth:`leglib.twin.host.Twin.step_batch`), each from the state the device is in now (the
+        leg at rest, IDLE) with its configuration and encoder reference. Afterwards the
+        device is IDLE with the leg back where it started (as if it had settled there) and
+        virtual time advanced by the steps' duration plus a 2 s settling wait per step.
+        The joint travel of the steps is added to the device's (a plant whose friction
+        drifts with use wears on), though every step starts from the same state. Counts as
+        one transaction (for disconnect injection); the watchdog is taken as fed, as the
+        polling loop feeds it every sample.
+        """
+        if self._handle_boot != self.boot_count:
+            raise DeviceLostError("virtual ODrive: the board rebooted since this connection was made; reconnect")
+        self._transaction()
+        for a in range(2):
+            ax = self._axis[a]
+            if not (ax["motor_calibrated"] and ax["encoder_ready"]):
+                raise RuntimeError(f"axis{a} is not calibrated: run the calibration first")
+            if self.st.AI[0, a, L.I_AXIS_ERR] or self.st.AI[0, 0, L.I_SYS_ERR]:
+                raise RuntimeError(f"axis{a} has an error (0x{int(self.st.AI[0, a, L.I_AXIS_ERR]):x}): "
+                                   f"clear it first")
+            if ax["state"] != AXIS_STATE_IDLE or ax["pending"] is not None:
+                raise RuntimeError(f"axis{a} is not IDLE: a whole step starts from rest")
+        start = self.st.copy()
+        start.C[0, :, L.C_WD_ENABLE] = 0.0
+        start.AI[0, :, L.I_TRAJ_DONE] = 1
+        start.ABORT[...] = 0
+        out = self.twin.step_batch(gains, start=start, **kwargs)
+        # the firmware's error flags of the last step stay on the device, as on the real one
+        final = out["final"]
+        wear = [L.X_TRAVEL1, L.X_TRAVEL2]
+        self.st.X[0, wear] += np.sum(final.X[:, wear] - start.X[0, wear], axis=0)
+        self.st.AI[0, :, L.I_AXIS_ERR] |= final.AI[-1, :, L.I_AXIS_ERR]
+        self.st.AI[0, :, L.I_CTRL_ERR] |= final.AI[-1, :, L.I_CTRL_ERR]
+        self.st.AI[0, :, L.I_MOTOR_ERR] |= final.AI[-1, :, L.I_MOTOR_ERR]
+        self.st.AI[0, 0, L.I_SYS_ERR] |= final.AI[-1, 0, L.I_SYS_ERR]
+        duration = kwargs.get("duration", 1.5)
+        n = len(np.atleast_2d(gains))
+        t_now = self.time + n * (duration + 2.0)
+        self.st.X[0, 4] = t_now
+        last = np.atleast_2d(gains)[-1]
+        for a in range(2):
+            self.st.AI[0, a, L.I_MODE] = L.MODE_IDLE
+            self.st.C[0, a, [L.C_POS_GAIN, L.C_VEL_GAIN, L.C_VEL_INT_GAIN]] = last
+            self._feed(a)
+        return out

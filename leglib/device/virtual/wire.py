@@ -1,0 +1,649 @@
+"""The virtual ODrive on the wire: endpoint ids of the firmware's own table, served to the
+installed ``odrive`` client.
+
+A real ODrive v3.6 describes itself with a JSON table (endpoint 0) and then answers reads,
+writes and function calls by endpoint id. :class:`VirtualUSBDevice` does the same for a
+:class:`leglib.device.virtual.firmware.VirtualODrive`, with the tables of firmware 0.5.1 and 0.5.6
+shipped in :mod:`leglib.device.virtual.tables`; the ``odrive`` package then builds its usual object tree
+over it (``odrive.runtime_device.RuntimeDevice``, ``odrive.sync_tree.SyncObject``), so a
+virtual and a USB ODrive are the same kind of Python object: ``odrv.axis0.controller.config.
+pos_gain``, ``odrv.save_configuration()`` and ``odrive.utils.dump_errors(odrv)`` behave alike.
+
+Every endpoint of the table resolves:
+
+- endpoints the firmware model implements (its tree: ``VirtualODrive._tree``) are read,
+  written and called there, each one USB transaction on the virtual clock;
+- the firmware identity (``fw_version_*``) is that of the table served;
+- every other endpoint is *unmodeled*: it holds the firmware's default value
+  (:func:`firmware_defaults`, extracted from the firmware's sources, else zero), a write that changes it warns once per device
+  (:class:`UnmodeledEndpointWarning`, naming it) because the real device would change its
+  behaviour, and calling an unmodeled function that acts on the device raises
+  ``NotImplementedError`` naming it (queries in :data:`UNMODELED_QUERIES` return zeros).
+  :func:`endpoint_coverage` lists which is which.
+
+:func:`find_any` (exported as :func:`leglib.device.virtual.wire.find_any`) keeps one virtual
+device per serial number for the life of the process. When the device reboots (its
+``boot_count`` grows), every old handle raises :class:`VirtualDeviceLost` (an
+``odrive.DeviceLostException``) on its next access, as a USB handle does; ``find_any`` with
+the same seed returns a new handle to the same device.
+
+The client runs its coroutines on one background event loop (a daemon thread), as
+``odrive.find_any`` does from a plain script; each blocking access hops to that thread.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import struct
+import threading
+import time as _time
+import warnings
+from dataclasses import dataclass, field
+from importlib import resources
+
+from odrive.async_tree import AsyncObject
+from odrive.libodrive import DeviceLostException, DeviceType, DiscoveryInfo
+from odrive.runtime_device import RuntimeDevice
+from odrive.sync_tree import SyncObject
+
+from ...errors import DeviceLostError
+from ...params import PlantParams, load_plant
+from .firmware import VirtualODrive
+
+FIRMWARE_TABLES = {"0.5.1": "endpoints_fw-v0.5.1.json", "0.5.6": "endpoints_fw-v0.5.6.json"}
+FIRMWARE_ALIASES = {"0.5": "0.5.6"}
+SERIAL_BASE = 0x3A7F1E2D4B00  # the model's serial_number is SERIAL_BASE + seed
+
+# struct format of each codec of the table (as odrive.codecs)
+_FORMATS = {"int8": "b", "uint8": "B", "int16": "h", "uint16": "H", "int32": "i", "uint32": "I",
+            "int64": "q", "uint64": "Q", "bool": "?", "float": "f", "endpoint_ref": "I"}
+
+# Defaults of unmodeled endpoints: the firmware's configuration defaults, extracted from its
+# sources (leglib/device/virtual/tables/defaults_fw-v*.json, by leglib/device/virtual/tables/extract_defaults.py, each
+# with its file:line), then these, else zero.
+EXTRA_DEFAULTS = {
+    "hw_version_variant": 24,   # the 24 V board variant, as the twin's bus (hw_version.py: v3.6-24V)
+}
+
+# functions that only read something: unmodeled, they return zeros instead of raising
+UNMODELED_QUERIES = {"test_function", "get_oscilloscope_val", "oscilloscope.get_val", "get_adc_voltage",
+                     "get_interrupt_status", "get_dma_status", "get_gpio_states", "get_drv_fault",
+                     "axis*.controller.get_anticogging_value"}
+
+# the firmware identity endpoints, answered from the table served
+_IDENTITY = ("fw_version_major", "fw_version_minor", "fw_version_revision", "fw_version_unreleased")
+
+
+class UnmodeledEndpointWarning(UserWarning):
+    """A write to an endpoint the virtual ODrive holds but does not model changed its value."""
+
+
+class VirtualDeviceLost(DeviceLostException, DeviceLostError):
+    """The virtual ODrive went away (reboot, injected disconnect): the old handle is dead.
+
+    It is the client's own ``odrive.DeviceLostException``, as on USB, and leglib's
+    :class:`leglib.errors.DeviceLostError`.
+    """
+
+    def __init__(self, device, reason: str = ""):
+        DeviceLostException.__init__(self, device)
+        if reason:
+            self.args = (f"{self.args[0]} ({reason})",)
+
+
+# ---------------------------------------------------------------------------------------
+# the tables
+# ---------------------------------------------------------------------------------------
+
+def normalize_firmware(firmware: str) -> str:
+    """The table version for a ``firmware`` argument: "0.5.1" or "0.5.6" ("0.5" is 0.5.6).
+
+    Raises ValueError naming the parameter for anything else; 0.6.x gets its own message,
+    since an ODrive v3.6 has no 0.6 firmware.
+    """
+    fw = str(firmware).strip().lstrip("v")
+    fw = FIRMWARE_ALIASES.get(fw, fw)
+    if fw in FIRMWARE_TABLES:
+        return fw
+    parts = fw.split(".")
+    if len(parts) >= 2 and parts[0].isdigit() and parts[1].isdigit() and (int(parts[0]), int(parts[1])) >= (0, 6):
+        raise ValueError(f"firmware={firmware!r}: an ODrive v3.6 has no 0.6 firmware (0.6.x is for ODrive "
+                         f"Pro, S1 and Micro); use '0.5.6' or '0.5.1'")
+    raise ValueError(f"firmware={firmware!r}: the virtual ODrive v3.6 has the endpoint tables of "
+                     f"{sorted(FIRMWARE_TABLES)} ('0.5' means '0.5.6')")
+
+
+_TABLE_CACHE: dict[str, tuple[bytes, list]] = {}
+
+
+def endpoint_table(firmware: str = "0.5.6") -> list:
+    """The firmware's interface description (nested JSON list) for ``firmware``."""
+    return _table_raw(normalize_firmware(firmware))[1]
+
+
+def _table_raw(version: str) -> tuple[bytes, list]:
+    if version not in _TABLE_CACHE:
+        raw = resources.files("leglib.device.virtual.tables").joinpath(FIRMWARE_TABLES[version]).read_bytes()
+        _TABLE_CACHE[version] = (raw, json.loads(raw))
+    return _TABLE_CACHE[version]
+
+
+_DEFAULTS_CACHE: dict[str, dict] = {}
+
+
+def firmware_defaults(firmware: str = "0.5.6") -> dict:
+    """``{"axis*.motor.config.calibration_current": {"value": 10.0, "source":
+    "Firmware/MotorControl/motor.hpp:20"}, ...}``: the configuration defaults of
+    ``firmware``, from its sources (ODrive v3.6, 24 V)."""
+    version = normalize_firmware(firmware)
+    if version not in _DEFAULTS_CACHE:
+        raw = resources.files("leglib.device.virtual.tables").joinpath(f"defaults_fw-v{version}.json").read_text()
+        _DEFAULTS_CACHE[version] = json.loads(raw)["defaults"]
+    return _DEFAULTS_CACHE[version]
+
+
+def flatten(table: list, prefix: str = "") -> dict:
+    """``{"axis0.controller.config.pos_gain": entry, ...}``: every property and function."""
+    out = {}
+    for item in table:
+        path = f"{prefix}{item['name']}"
+        if item["type"] == "object":
+            out.update(flatten(item["members"], path + "."))
+        elif item["type"] != "json":
+            out[path] = item
+    return out
+
+
+def _generic(path: str) -> str:
+    """``axis1.motor.config.x`` -> ``axis*.motor.config.x`` (the keys of the defaults)."""
+    head, _, rest = path.partition(".")
+    return "axis*." + rest if head.startswith("axis") and head[4:].isdigit() else path
+
+
+def _crc16(data: bytes, init: int = 0x1337, poly: int = 0x3D65) -> int:
+    """Fibre's canonical CRC16 (the JSON's checksum the client folds into endpoint refs)."""
+    crc = init
+    for byte in data:
+        crc ^= byte << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ poly) if crc & 0x8000 else (crc << 1)
+            crc &= 0xFFFF
+    return crc
+
+
+# ---------------------------------------------------------------------------------------
+# resolution of endpoints onto the model
+# ---------------------------------------------------------------------------------------
+
+@dataclass
+class _Endpoint:
+    path: str
+    id: int
+    kind: str            # "property" or "function"
+    codec: str           # property codec, or "function"
+    writable: bool
+    source: str          # "model", "identity" or "unmodeled"
+    node: object = None  # the model's _Node holding it (source "model")
+    leaf: str = ""
+    outputs: tuple = ()
+
+
+def _resolve(sim, path: str):
+    """The model node holding ``path`` and whether it is a property/method there, or None."""
+    node = sim._tree
+    *parents, leaf = path.split(".")
+    for name in parents:
+        node = node._children.get(name)
+        if node is None:
+            return None
+    if leaf in node._props:
+        return node, leaf, "property"
+    if leaf in node._methods:
+        return node, leaf, "function"
+    return None
+
+
+def _build_endpoints(sim, version: str) -> dict[int, _Endpoint]:
+    eps = {}
+    for path, e in flatten(_table_raw(version)[1]).items():
+        kind = "function" if e["type"] == "function" else "property"
+        ep = _Endpoint(path=path, id=e["id"], kind=kind, codec=e["type"],
+                       writable="w" in e.get("access", ""), source="unmodeled",
+                       outputs=tuple(o["type"] for o in e.get("outputs", ())))
+        if kind == "property" and path in _IDENTITY:
+            ep.source = "identity"
+        else:
+            hit = _resolve(sim, path)
+            if hit is not None and hit[2] == kind:
+                ep.source, ep.node, ep.leaf = "model", hit[0], hit[1]
+        eps[ep.id] = ep
+    return eps
+
+
+def endpoint_coverage(sim=None, firmware: str = "0.5.6") -> dict:
+    """How the table of ``firmware`` maps onto the firmware model.
+
+    Returns
+    -------
+    dict with lists of endpoint paths: ``"model"`` (answered by the model), ``"identity"``
+    (firmware version, from the table), ``"unmodeled"`` (held at the firmware default).
+    """
+    version = normalize_firmware(firmware)
+    if sim is None:
+        sim = VirtualODrive(firmware=_model_firmware(version))
+    out = {"model": [], "identity": [], "unmodeled": []}
+    for ep in _build_endpoints(sim, version).values():
+        out[ep.source].append(ep.path)
+    return {k: sorted(v) for k, v in out.items()}
+
+
+def _model_firmware(version: str) -> str:
+    """The firmware model's own version string (the model runs each version as itself)."""
+    return version
+
+
+def _version_tuple(version: str) -> tuple[int, int, int]:
+    return tuple(int(p) for p in version.split("."))
+
+
+def _boot_count(sim) -> int:
+    return int(getattr(sim, "boot_count", 0))
+
+
+# ---------------------------------------------------------------------------------------
+# the device record (lives for the process) and the USB-like device (one per boot)
+# ---------------------------------------------------------------------------------------
+
+@dataclass
+class _Record:
+    """One virtual ODrive of the process: the model, its table and the held endpoints."""
+
+    sim: object
+    version: str
+    serial: int
+    args: dict
+    held: dict = field(default_factory=dict)        # unmodeled endpoint values (live)
+    saved_held: dict = field(default_factory=dict)  # ... as last saved to "flash"
+    warned: set = field(default_factory=set)
+    handle: object = None                           # the client object of the current boot
+    handle_boot: int = -1
+    link: int = 0                                   # re-plugs after a lost link
+    handle_link: int = -1
+    lock: threading.RLock = field(default_factory=threading.RLock)
+
+    def default(self, path: str, codec: str):
+        hit = firmware_defaults(self.version).get(_generic(path))
+        if hit is not None:
+            value = hit["value"]
+            if codec not in ("float", "bool") and isinstance(value, (int, float)):
+                # C's conversion to the member's type: uint8 axis_to_mirror = -1 reads 255
+                fmt = "<" + _FORMATS[codec]
+                bits = 8 * struct.calcsize(fmt)
+                value = int(value) % (1 << bits)
+                if fmt[1].islower() and value >= 1 << (bits - 1):
+                    value -= 1 << bits
+            return value
+        if path in EXTRA_DEFAULTS:
+            return EXTRA_DEFAULTS[path]
+        return False if codec == "bool" else 0.0 if codec == "float" else 0
+
+    def reboot_held(self):
+        """After a reboot: unmodeled values are the defaults, saved configuration applied."""
+        self.held = dict(self.saved_held)
+
+
+class _Interface:
+    """What the client reads from a transport: its type (neither USB nor CAN) and that it is open."""
+
+    interface_type = 0
+    open = True
+    discovering = False
+
+    def __repr__(self):
+        return "Interface(virtual)"
+
+
+class VirtualUSBDevice:
+    """A ``odrive.libodrive.Device`` look-alike that answers endpoint ids from the firmware
+    model of one boot of a virtual ODrive.
+
+    Parameters
+    ----------
+    record : the device record (model, table version, held endpoint values)
+    """
+
+    def __init__(self, record: _Record):
+        self._record = record
+        self._sim = record.sim
+        self._boot = _boot_count(record.sim)
+        self._link = record.link
+        self._endpoints = _build_endpoints(record.sim, record.version)
+        self._raw_json, _ = _table_raw(record.version)
+        self._crc = _crc16(self._raw_json)
+        self.info = DiscoveryInfo(device_type=DeviceType.RUNTIME, serial_number=f"{record.serial:012X}")
+        self.interface = _Interface()
+        self.hw_version = None
+        self.on_disconnected = None
+        self._connected = False
+
+    def __repr__(self):
+        return f"VirtualUSBDevice(serial_number={self.info.serial_number}, firmware={self._record.version})"
+
+    # -- link ----------------------------------------------------------------------------
+    @property
+    def sim(self):
+        """The firmware model behind this device."""
+        return self._sim
+
+    @property
+    def is_present(self) -> bool:
+        return (_boot_count(self._sim) == self._boot and self._link == self._record.link
+                and not getattr(self._sim, "lost", False))
+
+    def _alive(self):
+        if _boot_count(self._sim) != self._boot:
+            raise VirtualDeviceLost(self, "the virtual ODrive rebooted")
+        if getattr(self._sim, "lost", False) or self._link != self._record.link:
+            raise VirtualDeviceLost(self, "link lost")
+
+    def _model(self, op):
+        """Run ``op`` on the model; the model's own DeviceLostError becomes the client's."""
+        try:
+            return op()
+        except DeviceLostError as exc:
+            if isinstance(exc, VirtualDeviceLost):
+                raise
+            raise VirtualDeviceLost(self, str(exc)) from exc
+
+    async def connect(self, node_id=None, baudrate=None) -> None:
+        self._alive()
+        self._connected = True
+
+    def disconnect(self):
+        self._connected = False
+
+    async def get_json(self) -> tuple[bytes, int]:
+        self._alive()
+        return self._raw_json, self._crc
+
+    async def get_json_id(self) -> int:
+        return (self._crc << 16) | len(self._raw_json) & 0xFFFF
+
+    # -- endpoint operations -------------------------------------------------------------
+    def _endpoint(self, eid: int, kind: str) -> _Endpoint:
+        ep = self._endpoints.get(eid)
+        if ep is None or ep.kind != kind:
+            raise ValueError(f"virtual ODrive (firmware {self._record.version}): no {kind} with "
+                             f"endpoint id {eid}")
+        return ep
+
+    def _read_one(self, ep: _Endpoint):
+        if ep.source == "model":
+            return self._model(lambda: getattr(ep.node, ep.leaf))
+        self._transaction()
+        if ep.source == "identity":
+            v = _version_tuple(self._record.version)
+            return {"fw_version_major": v[0], "fw_version_minor": v[1], "fw_version_revision": v[2],
+                    "fw_version_unreleased": 0}[ep.path]
+        rec = self._record
+        return rec.held.get(ep.path, rec.default(ep.path, ep.codec))
+
+    def _write_one(self, ep: _Endpoint, value):
+        if ep.source == "model":
+            if ep.node._props[ep.leaf].set is None:
+                raise NotImplementedError(f"virtual ODrive: writing {ep.path} is not modeled (the "
+                                          f"firmware accepts it)")
+            return self._model(lambda: setattr(ep.node, ep.leaf, value))
+        if ep.source == "identity":
+            raise AttributeError(f"{ep.path} is read-only")
+        self._transaction()
+        rec = self._record
+        old = rec.held.get(ep.path, rec.default(ep.path, ep.codec))
+        fmt = "<" + _FORMATS[ep.codec]
+        old = struct.unpack(fmt, struct.pack(fmt, self._to_wire(ep.codec, old)))[0]  # as on the wire
+        if value != old and ep.path not in rec.warned:
+            rec.warned.add(ep.path)
+            warnings.warn(f"virtual ODrive: {ep.path} is not modeled; the value {value!r} is held "
+                          f"but changes nothing in the simulated device (the real ODrive would act "
+                          f"on it)", UnmodeledEndpointWarning, stacklevel=2)
+        rec.held[ep.path] = value
+
+    def _transaction(self):
+        tx = getattr(self._sim, "_transaction", None)
+        if tx is not None:
+            self._model(tx)
+
+    @staticmethod
+    def _to_wire(codec: str, value):
+        if codec == "float":
+            return float(value)
+        if codec == "bool":
+            return bool(value)
+        return int(value)
+
+    async def read_endpoints(self, endpoint_ids, sizes, transient=False) -> bytes:
+        with self._record.lock:
+            self._alive()
+            out = bytearray()
+            for eid, size in zip(endpoint_ids, sizes):
+                ep = self._endpoint(eid, "property")
+                fmt = "<" + _FORMATS[ep.codec]
+                if struct.calcsize(fmt) != size:
+                    raise ValueError(f"virtual ODrive: {ep.path} is {ep.codec}, read asked for {size} bytes")
+                out += struct.pack(fmt, self._to_wire(ep.codec, self._read_one(ep)))
+            return bytes(out)
+
+    async def write_endpoints(self, endpoint_ids, sizes, buf: bytes) -> None:
+        with self._record.lock:
+            self._alive()
+            pos = 0
+            for eid, size in zip(endpoint_ids, sizes):
+                ep = self._endpoint(eid, "property")
+                fmt = "<" + _FORMATS[ep.codec]
+                (value,) = struct.unpack_from(fmt, buf, pos)
+                pos += size
+                if not ep.writable:
+                    raise AttributeError(f"{ep.path} is read-only")
+                self._write_one(ep, value)
+
+    async def call_function(self, endpoint_id, in_format: str, out_format: str, args):
+        with self._record.lock:
+            self._alive()
+            ep = self._endpoint(endpoint_id, "function")
+            args = struct.unpack(in_format, struct.pack(in_format, *args))  # the wire's conversions
+            n_out = len(struct.unpack(out_format, bytes(struct.calcsize(out_format))))
+            if ep.source == "model":
+                boot = _boot_count(self._sim)
+                saving = {k: v for k, v in self._record.held.items()
+                          if ".config." in k or k.startswith("config.")}
+                result = False
+                try:
+                    result = self._model(lambda: getattr(ep.node, ep.leaf)(*args))
+                    wrote = result is not False    # True, or None on 0.5.1 (no return value)
+                except Exception:
+                    wrote = False
+                    raise
+                finally:
+                    # flash is written also when the board resets inside the call (0.5.2+)
+                    if ep.path == "save_configuration" and (wrote or _boot_count(self._sim) != boot):
+                        self._record.saved_held = saving
+            elif _generic(ep.path) in UNMODELED_QUERIES:
+                self._transaction()
+                result = tuple(0 for _ in range(n_out))
+            else:
+                raise NotImplementedError(f"virtual ODrive (firmware {self._record.version}): "
+                                          f"{ep.path}() is not modeled")
+            if _boot_count(self._sim) != self._boot:
+                # the firmware resets inside the call (NVIC_SystemReset): no response comes back
+                raise VirtualDeviceLost(self, f"{ep.path}() rebooted the virtual ODrive")
+            if n_out == 0:
+                return ()
+            values = result if isinstance(result, tuple) else (result,)
+            if len(values) != n_out:
+                raise ValueError(f"virtual ODrive: {ep.path}() returned {len(values)} values, the "
+                                 f"table declares {n_out}")
+            values = [self._to_wire(c, v) for c, v in zip(ep.outputs, values)]
+            return struct.unpack(out_format, struct.pack(out_format, *values))
+
+
+# ---------------------------------------------------------------------------------------
+# the client's event loop, the registry and find_any
+# ---------------------------------------------------------------------------------------
+
+_LOOP = None
+_LOOP_LOCK = threading.Lock()
+_REGISTRY: dict[int, _Record] = {}
+_REGISTRY_LOCK = threading.RLock()
+
+
+def _client_loop() -> asyncio.AbstractEventLoop:
+    """The background event loop the client objects of virtual devices run on."""
+    global _LOOP
+    with _LOOP_LOCK:
+        if _LOOP is None:
+            loop = asyncio.new_event_loop()
+            threading.Thread(target=loop.run_forever, name="leglib-virtual-odrive", daemon=True).start()
+            _LOOP = loop
+    return _LOOP
+
+
+def _connect_client(record: _Record):
+    """A fresh client object tree over the current boot of ``record``'s device."""
+    if _boot_count(record.sim) != record.handle_boot and record.handle_boot >= 0:
+        record.reboot_held()
+    device = VirtualUSBDevice(record)
+    fut = asyncio.run_coroutine_threadsafe(RuntimeDevice.from_device(device, json_cache=None), _client_loop())
+    runtime = fut.result()
+    record.handle = runtime.sync_wrapper
+    record.handle_boot = device._boot
+    record.handle_link = device._link
+    return record.handle
+
+
+def serial_for_seed(seed: int) -> int:
+    """The serial number of the virtual ODrive made with ``seed``."""
+    return SERIAL_BASE + int(seed)
+
+
+def _parse_serial(serial_number) -> int:
+    if isinstance(serial_number, int) and not isinstance(serial_number, bool):
+        return serial_number
+    if isinstance(serial_number, str):
+        try:
+            return int(serial_number, 16)
+        except ValueError:
+            pass
+    raise ValueError(f"serial_number={serial_number!r}: expected the hex string the client reports "
+                     f"(e.g. '{SERIAL_BASE:012X}') or an int")
+
+
+def find_any(*, seed: int = 0, plant="default", firmware: str = "0.5.6", realtime: bool = False,
+             timeout: float | None = None, serial_number=None, **options):
+    """The virtual ODrive of ``seed`` as the ``odrive`` client's object: a drop-in for
+    ``odrive.find_any()``. See :func:`leglib.device.virtual.wire.find_any`."""
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ValueError(f"seed={seed!r}: expected a non-negative int")
+    if timeout is not None and (isinstance(timeout, bool) or not isinstance(timeout, (int, float))
+                                or not timeout > 0):
+        raise ValueError(f"timeout={timeout!r}: expected a positive number of seconds or None")
+    if not isinstance(plant, (str, PlantParams)) and not hasattr(plant, "__fspath__"):
+        raise ValueError(f"plant={plant!r}: expected a plant name, a path or PlantParams")
+    version = normalize_firmware(firmware)
+    serial = serial_for_seed(seed)
+    if serial_number is not None:
+        wanted = _parse_serial(serial_number)
+        if seed != 0 and wanted != serial:
+            raise ValueError(f"serial_number={serial_number!r} is not the device of seed={seed} "
+                             f"({serial:012X})")
+        if wanted < SERIAL_BASE:
+            raise ValueError(f"serial_number={serial_number!r}: no virtual ODrive has this serial number "
+                             f"(they are {SERIAL_BASE:012X} + seed)")
+        serial, seed = wanted, wanted - SERIAL_BASE
+    allowed = {"config", "noise", "disconnect_after", "payload_off_for_calibration"}
+    unknown = set(options) - allowed
+    if unknown:
+        raise TypeError(f"find_any: unknown option(s) {sorted(unknown)}; allowed: seed, plant, firmware, "
+                        f"realtime, timeout, serial_number, {', '.join(sorted(allowed))}")
+    args = {"plant": load_plant(plant) if isinstance(plant, str) else plant, "firmware": version,
+            **{k: v for k, v in options.items() if k != "disconnect_after"}}
+    with _REGISTRY_LOCK:
+        record = _REGISTRY.get(serial)
+        if record is None:
+            sim = VirtualODrive(plant=plant, seed=seed, realtime=bool(realtime),
+                                  firmware=_model_firmware(version), **options)
+            record = _Record(sim=sim, version=version, serial=serial, args=args)
+            _REGISTRY[serial] = record
+        else:
+            for key, value in args.items():
+                if key in record.args and record.args[key] != value:
+                    raise ValueError(f"{key}={value!r}: the virtual ODrive {serial:012X} (seed {seed}) "
+                                     f"exists with {key}={record.args[key]!r} for this process; use "
+                                     f"another seed for another device")
+            if getattr(record.sim, "lost", False):
+                # the link was lost (injected disconnect): finding the device re-plugs it;
+                # old handles stay dead, the device itself ran on (its watchdog acted)
+                record.sim.lost = False
+                record.sim.disconnect_after = None
+                record.link += 1
+            if "disconnect_after" in options:
+                record.sim.disconnect_after = options["disconnect_after"]
+            _set_realtime(record.sim, bool(realtime))
+        # (the client's loop thread takes record.lock for each operation: not held here)
+        if record.handle is not None and record.handle_boot == _boot_count(record.sim) \
+                and record.handle_link == record.link and not getattr(record.sim, "lost", False):
+            return record.handle
+        if record.handle is not None and record.handle_boot != _boot_count(record.sim):
+            # a rebooting board enumerates again only after its boot time (as find_any on
+            # USB waits for it): the model lets that virtual time pass
+            record.sim.reconnect()
+        return _connect_client(record)
+
+
+def connect_options(sim) -> dict:
+    """The :func:`find_any` arguments that find ``sim``'s device again (seed, plant,
+    firmware and the options it was made with); {} for a model not in the registry."""
+    with _REGISTRY_LOCK:
+        for record in _REGISTRY.values():
+            if record.sim is sim:
+                return {"seed": record.serial - SERIAL_BASE, **record.args}
+    return {}
+
+
+def _set_realtime(sim, realtime: bool) -> None:
+    """Switch pacing; entering real time re-bases the wall clock on the virtual one."""
+    if realtime and not sim.realtime and hasattr(sim, "_t0_wall"):
+        sim._t0_wall = _time.monotonic() - sim.time
+    sim.realtime = realtime
+
+
+def device_of(odrv):
+    """The :class:`~leglib.device.virtual.firmware.VirtualODrive` behind a client object (a
+    ``SyncObject``/``AsyncObject``/``RuntimeDevice`` from :func:`find_any`, any node of its
+    tree, or a :class:`leglib.device.session.Device`); None for a USB device or anything else."""
+    if isinstance(odrv, VirtualODrive):
+        return odrv
+    sim = getattr(odrv, "sim", None) if not _is_client_object(odrv) else None
+    if isinstance(sim, VirtualODrive):
+        return sim
+    runtime = odrv if _is_runtime(odrv) else getattr(odrv, "_dev", None)
+    device = getattr(runtime, "device", None)
+    return device.sim if isinstance(device, VirtualUSBDevice) else None
+
+
+def _is_client_object(obj) -> bool:
+    return isinstance(obj, (SyncObject, AsyncObject))
+
+
+def _is_runtime(obj) -> bool:
+    return isinstance(obj, RuntimeDevice)
+
+
+def forget(serial_number=None) -> None:
+    """Drop virtual devices from the process registry (all, or one serial number): the
+    next :func:`find_any` builds a fresh one. Old handles keep working on the old model."""
+    with _REGISTRY_LOCK:
+        if serial_number is None:
+            _REGISTRY.clear()
+        else:
+            _REGISTRY.pop(_parse_serial(serial_number), None)

@@ -1,0 +1,2 @@
+"""How wrong each method is: every method scored on every twin plant
+(:mod:`~leglib.evaluation.robustness`)."""

@@ -1,0 +1,157 @@
+"""The thesis's Listing 7.7 ("identifyParams") exactly, in its own measure.
+
+MATLAB ``smooth`` (5-point moving average with shrinking end spans) of -y, ``findpeaks``,
+delta = -ln(pks(1)/pks(2)) from the raw peak values (not from the final value),
+zeta = delta / sqrt(4 pi^2 + delta^2), and the listing's "omega_n [Hz]" = 1/(t2 - t1), a
+damped frequency (``.fd``). One peak gives zeta = 1, none zeta = 2, as the listing does,
+flagged. This is the measure of the thesis's Fig. 6.12, its target (zeta 0.24, 5 Hz) and its
+validation result (0.229, 5.06 Hz); it is strongly biased against the true zeta (see
+:mod:`leglib.thesis`). Apply it to the listing's own signal,
+:func:`leglib.model.kinematics.thesis_listing_height` of the zeroed angles in degrees.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import IdentificationError
+
+
+def _series(t, y, min_samples: int):
+    """``t``, ``y`` as float arrays, checked: 1-D, equal length, at least ``min_samples``,
+    finite, time strictly increasing."""
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if t.ndim != 1 or y.shape != t.shape:
+        raise IdentificationError(f"t and y must be 1-D arrays of equal length, got {t.shape} and {y.shape}")
+    if t.size < min_samples:
+        raise IdentificationError(f"response too short: {t.size} samples (need at least {min_samples})")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(y))):
+        raise IdentificationError("response contains NaN or infinite values")
+    if np.any(np.diff(t) <= 0):
+        raise IdentificationError("time must increase strictly")
+    return t, y
+
+
+@dataclass
+class ThesisReading:
+    """A step response read by the thesis's Listing 7.7 ("identifyParams").
+
+    All numbers are in the thesis's measure, not the true second-order parameters.
+
+    Attributes
+    ----------
+    zeta : float
+        Listing 7.7's damping [-]: delta / sqrt(4 pi^2 + delta^2) with
+        delta = -ln(pks(1)/pks(2)) from the raw peak values of smooth(-y); 1 for one peak,
+        2 for none (the listing's constants, see ``flagged``).
+    fd : float
+        1/(t2 - t1) [Hz] between the first two peaks: the listing's "omega_n [Hz]" (eq. 6.8),
+        a damped frequency. NaN with fewer than two peaks (the listing returns 0 there, see
+        ``listing_output``).
+    delta : float
+        The decrement -ln(pks(1)/pks(2)) [-]; NaN with fewer than two peaks.
+    peak_times : (P,) ndarray
+        Times [s] of every peak ``findpeaks`` finds in smooth(-y) (``locs``).
+    peak_values : (P,) ndarray
+        The peaks' values of smooth(-y) (``pks``), in the unit of y.
+    smoothed : (N,) ndarray
+        smooth(-y), the signal the peaks are taken from.
+    method : str
+        "thesis".
+    """
+
+    zeta: float
+    fd: float
+    delta: float
+    peak_times: np.ndarray
+    peak_values: np.ndarray
+    smoothed: np.ndarray
+    method: str = "thesis"
+
+    @property
+    def n_peaks(self) -> int:
+        return int(self.peak_times.size)
+
+    @property
+    def flagged(self) -> bool:
+        """True when zeta is the listing's constant (1 for one peak, 2 for none)."""
+        return self.n_peaks < 2
+
+    overdamped = flagged
+
+    @property
+    def listing_output(self) -> tuple[float, float]:
+        """``[wn, xi]`` exactly as Listing 7.7 returns them (wn = 0 with fewer than two peaks)."""
+        return (self.fd if self.n_peaks >= 2 else 0.0, self.zeta)
+
+
+def matlab_smooth(y, span: int = 5) -> np.ndarray:
+    """MATLAB's ``smooth(y)``: a moving average of ``span`` points (odd), whose span shrinks
+    symmetrically near the ends (yy(1) = y(1), yy(2) = mean(y(1:3)), ...).
+
+    Parameters
+    ----------
+    y : (N,) array_like
+    span : int, odd, default 5 (MATLAB's default)
+
+    Returns
+    -------
+    (N,) ndarray, in the unit of y
+    """
+    y = np.asarray(y, dtype=float)
+    if span < 1 or span % 2 == 0:
+        raise ValueError(f"span must be a positive odd integer, got {span}")
+    n = y.size
+    h = span // 2
+    out = np.empty(n)
+    # window sums added left to right, sample by sample (no running sums), so equal windows
+    # of quantized data give exactly equal averages and findpeaks sees the same plateaus
+    if n > 2 * h:
+        acc = np.zeros(n - 2 * h)
+        for j in range(span):
+            acc = acc + y[j:n - 2 * h + j]
+        out[h:n - h] = acc / span
+    for k in list(range(min(h, n))) + list(range(max(n - h, 0), n)):
+        w = min(k, n - 1 - k, h)
+        out[k] = sum(y[k - w:k + w + 1].tolist()) / (2 * w + 1)
+    return out
+
+
+def matlab_findpeaks(x) -> np.ndarray:
+    """Indices of MATLAB ``findpeaks(x)``'s peaks with its default options: samples larger
+    than both neighbours, a flat peak reported at its first sample, never an end point."""
+    x = np.asarray(x, dtype=float)
+    if x.size < 3:
+        return np.zeros(0, dtype=int)
+    # collapse runs of equal values to their first sample, as findpeaks does
+    keep = np.concatenate([[True], x[1:] != x[:-1]])
+    idx = np.nonzero(keep)[0]
+    s = np.sign(np.diff(x[idx]))
+    # a rise followed by a fall; the run's first sample must not be an end point
+    peak = np.nonzero((s[:-1] > 0) & (s[1:] < 0))[0] + 1
+    return idx[peak]
+
+
+def _thesis_reading(t, y) -> ThesisReading:
+    t, y = _series(t, y, 3)
+    inv = matlab_smooth(-y)
+    i = matlab_findpeaks(inv)
+    pks, locs = inv[i], t[i]
+    if pks.size == 0:
+        zeta, fd, delta = 2.0, float("nan"), float("nan")
+    elif pks.size == 1:
+        zeta, fd, delta = 1.0, float("nan"), float("nan")
+    else:
+        ratio = pks[0] / pks[1]
+        if not ratio > 0:
+            raise IdentificationError(f"Listing 7.7 cannot read this response: its first two peaks "
+                                      f"({pks[0]:.4g}, {pks[1]:.4g}) differ in sign, so ln(pks(1)/pks(2)) "
+                                      "is not real (the listing expects y of one sign)")
+        delta = -math.log(ratio)
+        zeta = delta / math.sqrt((2 * math.pi) ** 2 + delta ** 2)
+        fd = 1.0 / (locs[1] - locs[0])
+    return ThesisReading(float(zeta), float(fd), float(delta), locs, pks, inv)

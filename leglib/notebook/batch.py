@@ -1,0 +1,423 @@
+"""Batch re-runs of notebooks over a parameter grid, locally or on a Dask cluster.
+
+A spec (TOML)::
+
+    name = "payload"
+    notebooks = ["04_pid_sweeps", "05_validation"]   # run in this order, in one run directory
+    [parameters]                                     # the same for every run
+    smoke = true
+    [grid]                                           # every combination is a run
+    payload_mass = [0.0, 0.5, 1.0]
+
+Each run writes its executed notebooks, figures and metrics JSON under
+``reports/batch/<name>/<run id>/`` and a ``status.json``; a run whose status says
+"done" is skipped when the batch is re-run. A failing run records the notebook and cell
+that failed and does not stop the others. ``index.html`` lists all runs, each linked to its
+reports, with the chosen metrics of :data:`SUMMARY_METRICS` (validation errors, identified
+parameters) and units; ``summary.png`` plots those against the swept parameter.
+"""
+
+from __future__ import annotations
+
+import difflib
+import hashlib
+import html
+import itertools
+import json
+import math
+import re
+import stat
+import tomllib
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+
+from tqdm.auto import tqdm
+
+from ..errors import SpecError
+from ..files.atomic import write_json_atomic
+from .run import NOTEBOOK_DIR, execute
+
+SPEC_KEYS = ("name", "notebooks", "parameters", "grid")
+NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$", re.ASCII)
+MAX_SPEC_BYTES = 1 << 20
+MAX_RUNS = 10_000
+_TYPES = {"int": (int,), "float": (int, float), "str": (str,), "bool": (bool,)}
+
+
+def _did_you_mean(name, known) -> str:
+    close = difflib.get_close_matches(str(name), list(known), n=1, cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else f"; known: {', '.join(sorted(known))}"
+
+
+def _short(value, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
+def _read_spec_text(path: Path) -> str:
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        raise SpecError(f"{path}: spec not found") from None
+    except OSError as exc:
+        raise SpecError(f"{path}: cannot read spec ({exc.strerror})") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise SpecError(f"{path}: not a regular file")
+    if st.st_size > MAX_SPEC_BYTES:
+        raise SpecError(f"{path}: {st.st_size} bytes; a spec is at most {MAX_SPEC_BYTES}")
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise SpecError(f"{path}: cannot read spec ({exc.strerror})") from None
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise SpecError(f"{path}:{line}: not UTF-8 text (byte 0x{raw[exc.start]:02x})") from None
+
+
+_INSPECTED: dict = {}
+
+
+def _inspect(path: Path) -> dict:
+    """papermill's view of a notebook's parameters, cached while the file is unchanged."""
+    import papermill as pm  # load time: papermill and the kernel machinery (about 2 s), only when notebooks run
+    key = (str(path), path.stat().st_mtime_ns)
+    if key not in _INSPECTED:
+        _INSPECTED[key] = pm.inspect_notebook(str(path))
+    return _INSPECTED[key]
+
+
+def load_spec(path: str | Path) -> dict:
+    """Read and check a batch spec; SpecError names the file and the field.
+
+    Refused: unknown top-level keys (with a suggestion), a ``name`` that is not a plain
+    directory name (letters, digits, ``.``, ``_``, ``-``; at most 64 characters; not
+    ``.``/``..``), notebooks that do not exist, parameters no notebook of the spec takes,
+    values whose type differs from the notebook's parameter (an int where a float is
+    expected is fine), empty or repeated grid values, and more than MAX_RUNS runs. The
+    values' ranges are checked by each notebook's first cell.
+    """
+    path = Path(path)
+    text = _read_spec_text(path)
+    try:
+        spec = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{path}: not valid TOML: {str(exc)[:200]}") from None
+    for key in spec:
+        if key not in SPEC_KEYS:
+            raise SpecError(f"{path}: unknown key {key!r}{_did_you_mean(key, SPEC_KEYS)}")
+    name = spec.get("name")
+    if not isinstance(name, str) or not NAME_RE.match(name) or name in (".", ".."):
+        raise SpecError(f"{path}: field 'name' must be a plain directory name (letters, digits, '.', "
+                        f"'_', '-'; at most 64 characters; not '.' or '..'), got {_short(name)}")
+    nbs = spec.get("notebooks")
+    if not isinstance(nbs, list) or not nbs:
+        raise SpecError(f"{path}: field 'notebooks' must be a non-empty list of notebook names")
+    for nb in nbs:
+        if not isinstance(nb, str) or not NAME_RE.match(nb):
+            raise SpecError(f"{path}: field 'notebooks': {_short(nb)} is not a notebook name")
+        if not (NOTEBOOK_DIR / f"{nb}.ipynb").is_file():
+            known = sorted(q.stem for q in NOTEBOOK_DIR.glob("*.ipynb"))
+            raise SpecError(f"{path}: notebook {nb!r} not found in {NOTEBOOK_DIR}{_did_you_mean(nb, known)}")
+    if len(set(nbs)) != len(nbs):
+        raise SpecError(f"{path}: field 'notebooks' names a notebook twice")
+    grid = spec.get("grid", {})
+    if not isinstance(grid, dict) or not all(isinstance(v, list) and v for v in grid.values()):
+        raise SpecError(f"{path}: field 'grid' must map parameter names to non-empty lists")
+    parameters = spec.get("parameters", {})
+    if not isinstance(parameters, dict):
+        raise SpecError(f"{path}: field 'parameters' must be a table")
+    inspected = [_inspect(NOTEBOOK_DIR / f"{nb}.ipynb") for nb in nbs]
+    known = set().union(*inspected)
+    types = {}
+    for params in inspected:
+        for k, v in params.items():
+            types.setdefault(k, v.get("inferred_type_name"))
+    for field in ("parameters", "grid"):
+        for key, value in spec.get(field, {}).items():
+            if key not in known:
+                raise SpecError(f"{path}: {field}.{key} is not a parameter of {', '.join(nbs)}"
+                                f"{_did_you_mean(key, known)}")
+            if field == "grid" and key in parameters:
+                raise SpecError(f"{path}: {key} is both in [parameters] and in [grid]")
+            values = value if field == "grid" else [value]
+            accepted = _TYPES.get(types.get(key))
+            for v in values:
+                bad_type = (isinstance(v, bool) and accepted != (bool,)) or \
+                    (accepted is not None and not isinstance(v, accepted))
+                if bad_type or not isinstance(v, (bool, int, float, str)):
+                    raise SpecError(f"{path}: {field}.{key} = {_short(v)}: expected "
+                                    f"{types.get(key) or 'a plain value'}")
+                if isinstance(v, float) and not math.isfinite(v):
+                    raise SpecError(f"{path}: {field}.{key} = {v!r}: not finite")
+            if field == "grid" and len({json.dumps(v) for v in values}) != len(values):
+                raise SpecError(f"{path}: grid.{key} repeats a value: {_short(values)}")
+    n_runs = math.prod(len(v) for v in grid.values())
+    if n_runs > MAX_RUNS:
+        raise SpecError(f"{path}: the grid makes {n_runs} runs, more than {MAX_RUNS}")
+    return {"name": name, "notebooks": nbs, "parameters": parameters, "grid": grid}
+
+
+def runs_of(spec: dict) -> list[dict]:
+    """Every combination of the grid, merged over the fixed parameters, with a run id."""
+    keys = sorted(spec["grid"])
+    runs = []
+    for values in itertools.product(*(spec["grid"][k] for k in keys)):
+        params = {**spec["parameters"], **dict(zip(keys, values))}
+        label = "_".join(f"{k}={v}" for k, v in zip(keys, values)) or "run"
+        # a plain directory name whatever the values hold; the digest keeps it unique
+        label = re.sub(r"[^A-Za-z0-9._=+-]", "-", label)[:80]
+        digest = hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:8]
+        runs.append({"id": f"{label}-{digest}", "params": params, "grid": dict(zip(keys, values))})
+    return runs
+
+
+def run_one(notebooks: list[str], params: dict, out_dir: str) -> dict:
+    """Execute ``notebooks`` in order with ``params`` into ``out_dir``; returns the status
+    (also written to ``status.json``). Never raises for a failing notebook."""
+    import papermill as pm  # load time: papermill and the kernel machinery (about 2 s), only when notebooks run
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    status = {"status": "running", "params": params, "metrics": {}}
+    for nb in notebooks:
+        nb_params = {**params, "figures_dir": str(out / "figures"), "metrics_path": str(out / "metrics" / f"{nb}.json")}
+        for key in ("raw_dir", "sweep_dir", "processed_dir"):
+            nb_params.setdefault(key, str(out / key.replace("_dir", "")))
+        nb_params["identified_path"] = str(out / "processed" / "friction_identified.json")
+        known = set(pm.inspect_notebook(str(NOTEBOOK_DIR / f"{nb}.ipynb")))
+        nb_params = {k: v for k, v in nb_params.items() if k in known}
+        try:
+            execute(NOTEBOOK_DIR / f"{nb}.ipynb", out, nb_params, html=True)
+        except pm.PapermillExecutionError as exc:
+            status.update(status="failed", notebook=nb, cell=int(exc.cell_index),
+                          error=f"{exc.ename}: {exc.evalue}")
+            break
+        except Exception as exc:  # noqa: BLE001 - the kernel died, a file was unreadable, ...: reported
+            status.update(status="failed", notebook=nb, cell=None, error=f"{type(exc).__name__}: {exc}")
+            break
+        mpath = out / "metrics" / f"{nb}.json"
+        if mpath.exists():
+            status["metrics"][nb] = json.loads(mpath.read_text())
+    else:
+        status["status"] = "done"
+    write_json_atomic(out / "status.json", status)
+    return status
+
+
+def batch_root(out_root: str | Path, spec: dict) -> Path:
+    """The directory of a batch's runs and index (absolute: Dask workers run elsewhere)."""
+    return Path(out_root).resolve() / spec["name"]
+
+
+def run_batch(spec: str | Path | dict, out_root: str | Path = "reports/batch", scheduler: str | None = None,
+              workers: int = 2, progress: bool = True, cluster=None) -> dict:
+    """Run every grid point of the spec (a path, or a spec from :func:`load_spec`); skip
+    runs already done; write the index (``batch_root(out_root, spec) / "index.html"``).
+
+    ``scheduler``: a Dask scheduler address (``tcp://host:8786``); ``cluster``: a Dask
+    cluster object (tests use a LocalCluster); otherwise local processes (``workers``).
+    Returns {run id: status}.
+    """
+
+    spec = spec if isinstance(spec, dict) else load_spec(spec)
+    root = batch_root(out_root, spec)
+    root.mkdir(parents=True, exist_ok=True)
+    runs = runs_of(spec)
+    results, pending = {}, []
+    for r in runs:
+        st = root / r["id"] / "status.json"
+        if st.exists() and json.loads(st.read_text()).get("status") == "done":
+            results[r["id"]] = json.loads(st.read_text())
+        else:
+            pending.append(r)
+    bar = tqdm(total=len(runs), initial=len(runs) - len(pending), desc=f"batch {spec['name']}", unit="run",
+               disable=not progress)
+    args = [(spec["notebooks"], r["params"], str(root / r["id"])) for r in pending]
+    if pending and (scheduler or cluster is not None):
+        from dask.distributed import Client  # load time: dask (about 1 s), only with a scheduler
+        from dask.distributed import as_completed as dask_completed  # load time: as above
+        client = Client(cluster) if cluster is not None else Client(scheduler)
+        try:
+            futures = {client.submit(run_one, *a, pure=False): r["id"] for a, r in zip(args, pending)}
+            for fut in dask_completed(futures):
+                results[futures[fut]] = fut.result()
+                bar.update(1)
+        finally:
+            client.close()
+    elif pending:
+        with ProcessPoolExecutor(max_workers=max(1, workers)) as pool:
+            futures = {pool.submit(run_one, *a): r["id"] for a, r in zip(args, pending)}
+            for fut in as_completed(futures):
+                results[futures[fut]] = fut.result()
+                bar.update(1)
+    bar.close()
+    write_index(root, runs, results, spec["notebooks"])
+    return results
+
+
+# The metrics a batch summary shows, per notebook: (notebook, path in its metrics JSON,
+# label, unit, factor from the JSON's value to the unit). Validation errors and identified
+# parameters, the answers a parameter study asks for; timings and constants stay in
+# status.json.
+SUMMARY_METRICS = [
+    ("05_validation", ("summary", "map", "median"), "map method: median error", "%", 100.0),
+    ("05_validation", ("summary", "map", "worst"), "map method: worst error", "%", 100.0),
+    ("05_validation", ("summary", "model", "median"), "model method: median error", "%", 100.0),
+    ("05_validation", ("summary", "model", "worst"), "model method: worst error", "%", 100.0),
+    ("05_validation", ("thesis_target", "error_zeta"), "thesis target: zeta error", "%", 100.0),
+    ("05_validation", ("thesis_target", "error_fn"), "thesis target: fn error", "%", 100.0),
+    ("04_pid_sweeps", ("counts", "unstable"), "unstable grid points", "count", 1.0),
+    ("04_pid_sweeps", ("counts", "failed"), "failed grid points", "count", 1.0),
+    ("04_pid_sweeps", ("zeta_range", 1), "largest achievable zeta", "-", 1.0),
+    ("04_pid_sweeps", ("fn_range", 1), "highest achievable fn", "Hz", 1.0),
+    ("04_pid_sweeps", ("thesis_target_nearest", "fn"), "fn nearest the thesis target", "Hz", 1.0),
+    ("03_pole_placement", ("runs", "identified: live closed loop", "final_error_pct"),
+     "live state feedback: final error", "%", 1.0),
+    ("03_pole_placement", ("runs", "identified: live closed loop", "overshoot_pct"),
+     "live state feedback: overshoot", "%", 1.0),
+    ("02_friction_fitting", ("single_joint", "coulomb"), "identified Coulomb (single joint)", "N m", 1.0),
+    ("02_friction_fitting", ("single_joint", "viscous"), "identified viscous (single joint)", "N m s/rad", 1.0),
+    ("02_friction_fitting", ("single_joint", "inertia"), "identified inertia (single joint)", "kg m^2", 1.0),
+    ("02_friction_fitting", ("step_fit", "zeta"), "identified zeta of the Fig. 6.9 step", "-", 1.0),
+    ("01_derivation", ("eq511_max_rel_error",), "eq. 5.11 largest relative error", "%", 100.0),
+]
+
+
+def _lookup(d, path):
+    for k in path:
+        if isinstance(d, dict) and k in d:
+            d = d[k]
+        elif isinstance(d, list) and isinstance(k, int) and -len(d) <= k < len(d):
+            d = d[k]
+        else:
+            return None
+    return float(d) if isinstance(d, (int, float)) and not isinstance(d, bool) else None
+
+
+def summary_values(status: dict) -> dict:
+    """{(notebook, label, unit): value in the unit} of the :data:`SUMMARY_METRICS` a run's
+    status holds (missing and non-finite values left out)."""
+    out = {}
+    metrics = status.get("metrics", {})
+    for nb, path, label, unit, factor in SUMMARY_METRICS:
+        v = _lookup(metrics.get(nb, {}), path)
+        if v is not None and math.isfinite(v):
+            out[(nb, label, unit)] = v * factor
+    return out
+
+
+def _parameter_units(notebooks) -> dict:
+    """{parameter: its unit} from the notebooks' parameter comments ("kg, point mass ..."):
+    the comment's first word when it is followed by a comma and looks like a unit."""
+    import papermill as pm  # load time: papermill and the kernel machinery (about 2 s), only when notebooks run
+
+    units = {}
+    for nb in notebooks:
+        path = NOTEBOOK_DIR / f"{nb}.ipynb"
+        if not path.exists():
+            continue
+        for name, info in pm.inspect_notebook(str(path)).items():
+            head = (info.get("help") or "").split(",")[0].strip()
+            if head and "," in (info.get("help") or "") and len(head) <= 12 and " " not in head.strip("()"):
+                units.setdefault(name, head)
+    return units
+
+
+def write_index(root: Path, runs: list[dict], results: dict, notebooks: list[str] | None = None) -> Path:
+    """Write ``index.html`` and ``summary.png`` for a batch.
+
+    Parameters
+    ----------
+    root : the batch directory (runs in ``root / run id``)
+    runs : from :func:`runs_of`
+    results : {run id: status} (as ``status.json``)
+    notebooks : the spec's notebooks (for the links to each run's reports and the swept
+        parameters' units); default: those with a report in the run directories
+
+    ``index.html``: one row per run, its swept parameters (with units), status, failing
+    cell, the chosen metrics (:data:`SUMMARY_METRICS`: validation errors, identified
+    parameters) with units, and links to the run's reports and ``status.json`` (every
+    metric). ``summary.png``: each chosen metric against the first swept parameter (one
+    line per combination of the others), axes with units.
+    """
+
+    import matplotlib  # load time: matplotlib (about 0.5 s), only when drawing
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # load time: matplotlib (about 0.5 s), only when drawing
+
+    root = Path(root)
+    keys = list(runs[0]["grid"]) if runs else []
+    if notebooks is None:
+        notebooks = sorted({p.stem for r in runs for p in (root / r["id"]).glob("*.ipynb")})
+    units = _parameter_units(notebooks) if keys else {}
+
+    def with_unit(name, unit):
+        return f"{name} [{unit}]" if unit and unit != "-" else name
+
+    rows, chosen = [], []
+    for r in runs:
+        st = results.get(r["id"], {"status": "missing"})
+        vals = summary_values(st)
+        for k in vals:
+            if k not in chosen:
+                chosen.append(k)
+        rows.append((r, st, vals))
+    order = {(nb, label, unit): i for i, (nb, _, label, unit, _) in enumerate(SUMMARY_METRICS)}
+    chosen.sort(key=lambda k: order[k])
+    head = ["run", *(with_unit(k, units.get(k)) for k in keys), "status", "failure",
+            *(f"{nb[:2]}: {with_unit(label, unit)}" for nb, label, unit in chosen), "reports"]
+    lines = ["<html><head><meta charset='utf-8'><title>batch</title>",
+             "<style>td,th{padding:2px 6px;font-family:sans-serif;font-size:13px}</style></head><body>",
+             f"<h1>batch {html.escape(root.name)}</h1>",
+             "<p>Chosen metrics of every run against the swept parameters; each run's reports and "
+             "its <code>status.json</code> (every metric) are linked.</p>",
+             "<img src='summary.png' alt='chosen metrics against the swept parameters'>",
+             "<table border='1'><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"]
+    for r, st, vals in rows:
+        fail = "" if st.get("status") == "done" else f"{st.get('notebook', '')} cell {st.get('cell')}: {st.get('error', '')}"
+        cells = [html.escape(r["id"]), *(html.escape(str(v)) for v in r["grid"].values()),
+                 html.escape(str(st.get("status", ""))), html.escape(fail),
+                 *(f"{vals[k]:.4g}" if k in vals else "" for k in chosen)]
+        run_dir = root / r["id"]
+        links = []
+        for nb in notebooks:
+            for ext in (".html", ".ipynb"):
+                if (run_dir / f"{nb}{ext}").exists():
+                    links.append(f"<a href='{html.escape(r['id'])}/{nb}{ext}'>{html.escape(nb[:2])}</a>")
+                    break
+        if (run_dir / "status.json").exists():
+            links.append(f"<a href='{html.escape(r['id'])}/status.json'>status.json</a>")
+        cells.append(" ".join(links))
+        lines.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
+    lines.append("</table></body></html>")
+    (root / "index.html").write_text("\n".join(lines))
+    if keys and chosen:
+        n = len(chosen)
+        ncol = min(n, 4)
+        nrow = (n + ncol - 1) // ncol
+        fig, axes = plt.subplots(nrow, ncol, figsize=(4.0 * ncol, 3.2 * nrow), squeeze=False)
+        for ax, k in zip(axes.ravel(), chosen):
+            nb, label, unit = k
+            series = {}
+            for r, st, vals in rows:
+                if k in vals:
+                    rest = tuple((p, r["grid"][p]) for p in keys[1:])
+                    series.setdefault(rest, []).append((r["grid"][keys[0]], vals[k]))
+            for rest, pts in series.items():
+                x, y = zip(*sorted(pts))
+                ax.plot(x, y, "o-", label=", ".join(f"{p}={v}" for p, v in rest) or None)
+            if any(rest for rest in series):
+                ax.legend(fontsize=7)
+            ax.set_xlabel(with_unit(keys[0], units.get(keys[0])))
+            ax.set_ylabel(f"{label.split(': ')[-1]} [{unit}]", fontsize=8)
+            ax.set_title(f"{nb[:2]}: {label}", fontsize=9)
+            ax.grid(alpha=0.3)
+        for ax in axes.ravel()[n:]:
+            ax.set_visible(False)
+        fig.suptitle(f"batch {root.name}: chosen metrics against {keys[0]}")
+        fig.tight_layout()
+        fig.savefig(root / "summary.png", dpi=90)
+        plt.close(fig)
+    return root / "index.html"

@@ -1,0 +1,253 @@
+"""ipywidgets panels. Callbacks only call the same leglib functions the papermill run
+calls; every slider has ``continuous_update=False``."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .. import plots
+from ..design import statefeedback as SF
+from ..design.points import STATUS_FAILED, identify_response
+from ..experiments.step import step_response
+from ..model.drive import AxisMap
+from ..model.kinematics import foot_position
+from ..thesis import foot_mass, virtual_leg
+
+THESIS_TORQUE_LIMIT = 0.73  # N*m at a joint: the thesis's current limit through the 1:3 belt
+
+
+def design_readout(d) -> str:
+    """The text the pole-placement panel shows for a design (also used by tests). Single
+    spaces only, so the text a browser renders is this string exactly."""
+    K = " ".join(f"{v:.4f}" for v in d.K.ravel())
+    L = " ".join(f"{v:.2f}" for v in d.L.ravel())
+    Nbar = " ".join(f"{v:.4f}" for v in d.Nbar.ravel())
+    return f"K = [{K}]; L = [{L}]; Nbar = [{Nbar}]"
+
+
+def panel_poles(center: float, spread: float, zeta: float = 1.0) -> np.ndarray:
+    """The four closed-loop poles the pole panel's sliders ask for.
+
+    Parameters
+    ----------
+    center : [1/s], negative: with ``zeta >= 1`` the first real pole (the thesis's -7);
+        with ``zeta < 1`` minus the natural frequency wn of the first complex pair
+    spread : [1/s], distance between successive real poles, or between the two pairs' wn
+    zeta : damping ratio of the pairs; 1 or more gives four real poles (as the thesis)
+
+    Returns
+    -------
+    (4,) poles: real, or two complex-conjugate pairs -zeta wn +- j wn sqrt(1 - zeta^2).
+    """
+    if zeta >= 1:
+        return SF.spread_poles(center, 4, spread)
+    out = []
+    for wn in (abs(center), abs(center) + spread):
+        wd = wn * math.sqrt(1 - zeta ** 2)
+        out += [complex(-zeta * wn, wd), complex(-zeta * wn, -wd)]
+    return np.array(out)
+
+
+def pole_panel_design(sys, center: float, spread: float, observer_factor: float, integral_poles=None,
+                      zeta: float = 1.0, poles: str = ""):
+    """The design the panel shows for its values: ``poles`` (any valid set as text, e.g.
+    "-3+4j, -3-4j, -10, -11") when given, else :func:`panel_poles` of the sliders."""
+    p = SF.parse_poles(poles) if poles.strip() else panel_poles(center, spread, zeta)
+    return SF.place_poles(sys, p, observer_factor, integral_poles=integral_poles)
+
+
+def demanded_torque(d, r, t) -> np.ndarray:
+    """Joint torques (N, 2) [N*m, deviation from the operating point's] the linear closed
+    loop of design ``d`` demands for a reference step ``r`` (2,) [rad]: u = Nbar r - K x."""
+    import control  # load time: python-control (about 2 s), only for a design's linear system
+    A, B = d.sys.A, d.sys.B
+    sys_u = control.ss(A - B @ d.K, B @ d.Nbar, -d.K, d.Nbar)
+    t = np.asarray(t, dtype=float)
+    return control.forced_response(sys_u, t, np.tile(np.asarray(r, float)[:, None], t.size)).outputs.T
+
+
+def saturation_warning(tau, limit: float) -> str:
+    """A warning when torques ``tau`` (N, 2) [N*m] reach the limit [N*m], else ""."""
+    peak = float(np.max(np.abs(tau))) if np.size(tau) else 0.0
+    if peak < limit:
+        return ""
+    return (f"K asks for {peak:.2f} N m, more than the {limit:.2f} N m torque limit: the motors saturate, "
+            f"and the leg follows the nonlinear (limited) curve, not the linear prediction")
+
+
+def pole_placement_panel(sys, center: float = -7.0, spread: float = 0.007, observer_factor: float = 6.0,
+                         step_rad=(0.0, np.radians(20.0)), duration: float = 2.0, leg=None,
+                         torque_limit: float = THESIS_TORQUE_LIMIT):
+    """Sliders for the closed-loop poles and the observer factor.
+
+    The poles: a centre and a spread (the thesis's -7 ... -7.021), and a damping ratio that
+    turns them into two complex pairs (zeta < 1, :func:`panel_poles`); or any valid set
+    typed as text (complex allowed), which takes precedence while not empty. The panel shows
+    K, L and Nbar, the pole map, the predicted step of the linear closed loop and, with
+    ``leg``, the nonlinear leg's step under the torque limit ``torque_limit`` [N*m]
+    (:func:`leglib.design.statefeedback.simulate_closed_loop`), with the torques and a warning
+    when K asks for more torque than the limit.
+
+    Layout: children[0] the centre, spread and observer sliders; children[1] the readout;
+    children[2] the damping slider and the pole text; children[3] the warning;
+    children[4] the plots.
+    """
+    import ipywidgets as W  # load time: ipywidgets, only inside a notebook
+    import matplotlib.pyplot as plt  # load time: matplotlib (about 0.5 s), only when drawing
+
+    s_center = W.FloatSlider(value=center, min=-30.0, max=-1.0, step=0.5, description="pole centre",
+                             continuous_update=False, readout_format=".1f")
+    s_spread = W.FloatSlider(value=spread, min=0.001, max=2.0, step=0.001, description="spread",
+                             continuous_update=False, readout_format=".3f")
+    s_obs = W.FloatSlider(value=observer_factor, min=2.0, max=12.0, step=0.5, description="observer x",
+                          continuous_update=False, readout_format=".1f")
+    s_zeta = W.FloatSlider(value=1.0, min=0.1, max=1.0, step=0.05, description="pole zeta",
+                           continuous_update=False, readout_format=".2f")
+    t_poles = W.Text(value="", description="or poles", placeholder="e.g. -3+4j, -3-4j, -10, -11 (1/s)",
+                     continuous_update=False, layout=W.Layout(width="420px"))
+    readout = W.HTML()
+    warning = W.HTML()
+    out = W.Output()
+    t = np.linspace(0, duration, 401)
+
+    def redraw(*_):
+        try:
+            d = pole_panel_design(sys, s_center.value, s_spread.value, s_obs.value, zeta=s_zeta.value,
+                                  poles=t_poles.value)
+        except ValueError as exc:
+            readout.value = f"<b>cannot place:</b> {exc}"
+            warning.value = ""
+            return
+        readout.value = f"<code class='leglib-readout'>{design_readout(d)}</code>"
+        y = d.predicted_step(step_rad, t)
+        tau_lin = demanded_torque(d, step_rad, t)
+        res, why = None, ""
+        if leg is not None:
+            try:
+                res = SF.simulate_closed_loop(leg, d, step=step_rad, duration=duration, torque_limit=torque_limit)
+            except ValueError as exc:
+                why = f"nonlinear preview failed: {exc}"
+        text = saturation_warning(tau_lin, torque_limit)
+        warning.value = "".join(f"<p style='color:#b00'><b>warning:</b> {m}</p>" for m in (text, why) if m)
+        with out:
+            out.clear_output(wait=True)
+            fig, (a1, a2, a3) = plt.subplots(1, 3, figsize=(15, 3.8))
+            plots.plot_pole_map(d, ax=a1)
+            a1.set_title("poles [1/s]")
+            a2.plot(t, np.degrees(y[:, 0]), "b--", lw=1, label="q1, linear")
+            a2.plot(t, np.degrees(y[:, 1]), "r--", lw=1, label="q2, linear")
+            a2.axhline(np.degrees(step_rad[1]), color="k", ls=":", lw=0.8, label="q2 setpoint")
+            a3.plot(t, tau_lin[:, 0], "b--", lw=1, label="tau1, linear demand")
+            a3.plot(t, tau_lin[:, 1], "r--", lw=1, label="tau2, linear demand")
+            if res is not None:
+                q0 = np.array(leg.q0)
+                a2.plot(res.t, np.degrees(res.x[:, 0] - q0[0]), "b-", label="q1, nonlinear, limited")
+                a2.plot(res.t, np.degrees(res.x[:, 2] - q0[1]), "r-", label="q2, nonlinear, limited")
+                tau0 = np.array(res.meta["tau0"])
+                a3.plot(res.t, res.tau[:, 0] - tau0[0], "b-", label="tau1, nonlinear")
+                a3.plot(res.t, res.tau[:, 1] - tau0[1], "r-", label="tau2, nonlinear")
+            for s in (1, -1):
+                a3.axhline(s * torque_limit, color="k", lw=0.8, ls="-.", label="torque limit" if s > 0 else None)
+            a2.set_xlabel("t [s]")
+            a2.set_ylabel("joint angle deviation [deg]")
+            a2.set_title("predicted step" + (" (linear and nonlinear)" if res is not None else " (linear)"))
+            a2.legend(fontsize=7)
+            a3.set_xlabel("t [s]")
+            a3.set_ylabel("joint torque deviation [N m]")
+            a3.set_title("torques against the limit")
+            a3.legend(fontsize=7)
+            fig.tight_layout()
+            plt.show()
+
+    for s in (s_center, s_spread, s_obs, s_zeta, t_poles):
+        s.observe(redraw, names="value")
+    redraw()
+    return W.VBox([W.HBox([s_center, s_spread, s_obs]), readout, W.HBox([s_zeta, t_poles]), warning, out])
+
+
+def step_readout(resp, identified=None, leg=None) -> str:
+    """The text the gain panel shows for one step response (also used by tests);
+    ``identified``: the response's :func:`leglib.design.points.identify_response`, when the
+    caller already has it. "zeta = ..., fn = ... Hz, R^2 = ..." for a second-order step,
+    followed, with the nominal ``leg``, by the equivalent spring-damper-mass at the foot of
+    eqs. 6.1/6.3 (:func:`leglib.thesis.virtual_leg` with :func:`leglib.thesis.foot_mass`);
+    "not a second-order step: <why>" or "unstable: <why>" otherwise."""
+    p = identify_response(resp) if identified is None else identified
+    if p.status == STATUS_FAILED:
+        why = p.reason.removeprefix("not a second-order step: ")
+        return f"not a second-order step: {why}"
+    if p.status != "ok":
+        return f"{p.status}: {p.reason}"
+    zeta, fn = round(p.zeta, 3), round(p.fn, 2)
+    text = f"zeta = {zeta:.3f}, fn = {fn:.2f} Hz, R^2 = {p.r2:.3f}"
+    if leg is not None:
+        # of the (zeta, fn) shown, so the line is a function of what the reader sees
+        v = virtual_leg(zeta, fn, foot_mass(leg))
+        text += f"; at the foot m = {v.m:.3f} kg, b = {v.b:.2f} N s/m, k = {v.k:.0f} N/m"
+    return text
+
+
+def foot_setpoint(leg, resp) -> float:
+    """Foot height [m] the commanded step of ``resp`` asks for: the joints' start plus the
+    joint step of its motor step (exact five-bar)."""
+    dq1, dq2 = AxisMap.from_leg(leg).motor_step_to_joint_step(resp.step)
+    _, y = foot_position(leg, resp.q1[0] + dq1, resp.q2[0] + dq2)
+    return float(y)
+
+
+def gain_step_panel(odrv, gm=None, pos_gain: float = 50.0, vel_gain: float = 0.046,
+                    vel_integrator_gain: float = 0.001):
+    """Sliders for pos_gain, vel_gain and vel_integrator_gain: each change runs one step
+    (:func:`leglib.experiments.step.step_response`) and shows the response with its fitted
+    second-order step, the setpoint and R^2 (or "not a second-order step"), the readout
+    (:func:`step_readout`), and its place on the map's achievable region."""
+    import ipywidgets as W  # load time: ipywidgets, only inside a notebook
+    import matplotlib.pyplot as plt  # load time: matplotlib (about 0.5 s), only when drawing
+
+
+    cfg = odrv.config
+    s_pos = W.FloatSlider(value=pos_gain, min=1.0, max=min(cfg.max_pos_gain, 100.0), step=1.0,
+                          description="pos_gain", continuous_update=False, readout_format=".0f")
+    s_vel = W.FloatSlider(value=vel_gain, min=0.002, max=min(cfg.max_vel_gain, 0.3), step=0.002,
+                          description="vel_gain", continuous_update=False, readout_format=".3f")
+    s_int = W.FloatSlider(value=vel_integrator_gain, min=0.0, max=0.2, step=0.001,
+                          description="vel_int_gain", continuous_update=False, readout_format=".3f")
+    readout = W.HTML()
+    out = W.Output()
+
+    def redraw(*_):
+        resp = step_response(odrv, s_pos.value, s_vel.value, s_int.value)
+        p = identify_response(resp)
+        text = step_readout(resp, p, leg=getattr(odrv, "leg", None))
+        readout.value = f"<code class='leglib-readout'>{text}</code>"
+        with out:
+            out.clear_output(wait=True)
+            fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.8))
+            a1.plot(resp.t, resp.y * 1e3, "r-", label="measured")
+            fit = p.fit  # None when unstable or not identifiable at all
+            if fit is not None:
+                style = "b--" if p.status == "ok" else "0.5"
+                a1.plot(resp.t, fit.response(resp.t) * 1e3, style, lw=1.2,
+                        label=f"second-order fit, R^2 = {fit.r2:.3f}" + ("" if p.status == "ok" else " (rejected)"))
+            leg = getattr(odrv, "leg", None)
+            if leg is not None:
+                a1.axhline(foot_setpoint(leg, resp) * 1e3, color="k", ls=":", lw=0.8, label="setpoint")
+            if p.status != "ok":
+                a1.text(0.5, 0.5, "not a second-order step" if p.status == "failed" else p.status,
+                        transform=a1.transAxes, ha="center", color="#b00", fontsize=12,
+                        bbox={"fc": "w", "ec": "#b00"})
+            a1.set_xlabel("t [s]")
+            a1.set_ylabel("foot height y [mm]")
+            a1.set_title(f"step with gains ({s_pos.value:g}, {s_vel.value:g}, {s_int.value:g})")
+            a1.legend(fontsize=8)
+            if gm is not None:
+                plots.plot_gain_region(gm, ax=a2, marker=(p.zeta, p.fn) if p.status == "ok" else None)
+            fig.tight_layout()
+            plt.show()
+
+    for s in (s_pos, s_vel, s_int):
+        s.observe(redraw, names="value")
+    redraw()
+    return W.VBox([W.HBox([s_pos, s_vel, s_int]), readout, out])

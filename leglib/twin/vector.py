@@ -1,0 +1,464 @@
+"""The vectorized path of the twin's kernel: a block of legs, structure of arrays.
+
+The common case of a sweep -- a plant without the unmodeled effects, every axis in position
+control or IDLE with its inputs passed through, no watchdog -- runs here: the block's state
+copied into rows by leg, then per tick one loop over the legs for the controllers and one
+for the mechanics, branch-free, which the compiler turns into SIMD code over 8 legs at a
+time. It does what the reference tick of :mod:`leglib.twin.kernel` does for such a block,
+the same operations in the same order, so a leg's numbers do not depend on its path
+(tests/twin checks it bit for bit).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..abort import (
+    ABORT_NONE,
+    ABORT_NONFINITE,
+    ABORT_OSCILLATION,
+    ABORT_POSITION_ERROR,
+    _oscillation_step,
+)
+from ..kernelmath import py_max, py_min, select
+from .layout import (
+    AXIS_ERROR_CONTROLLER_FAILED,
+    AXIS_ERROR_MOTOR_FAILED,
+    C_BRAKE_ON,
+    C_BRAKE_R,
+    C_CURRENT_BW,
+    C_DC_MAX_NEG,
+    C_DC_MAX_POS,
+    C_ENCODER_BW,
+    C_INPUT_MODE,
+    C_KT,
+    C_MAX_REGEN,
+    C_REGEN_ERR_STYLE,
+    C_VBUS,
+    C_WD_ENABLE,
+    CONTROLLER_ERROR_OVERSPEED,
+    CURRENT_LIM_MARGIN,
+    F_ENC_ON,
+    G_BRAKE_I,
+    G_BRAKE_ON,
+    G_BRAKE_R,
+    G_DCN,
+    G_DCP,
+    G_IBUS,
+    G_IBUS_AXES,
+    G_INV_BRAKE_R,
+    G_INV_VBUS,
+    G_MAX_REGEN,
+    G_STYLE,
+    G_VBUS,
+    I_AXIS_ERR,
+    I_COUNTS,
+    I_CTRL_ERR,
+    I_MODE,
+    I_MOTOR_ERR,
+    I_SYS_ERR,
+    INPUT_MODE_PASSTHROUGH,
+    K_AE,
+    K_ALPHA,
+    K_CLIM,
+    K_FROM_C,
+    K_INVKT,
+    K_IPOS,
+    K_ITQ,
+    K_IVEL,
+    K_KI,
+    K_KP,
+    K_KT,
+    K_OFF,
+    K_PG,
+    K_VG,
+    K_VIG,
+    K_VIL,
+    K_VL,
+    K_VTOL,
+    LANES,
+    MODE_IDLE,
+    MODE_POSITION,
+    MOTOR_ERROR_CURRENT_LIMIT_VIOLATION,
+    MOTOR_ERROR_DC_BUS_OVER_CURRENT,
+    MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT,
+    MOTOR_ERROR_SYSTEM_LEVEL,
+    N_FROWS,
+    N_IROWS,
+    N_K,
+    N_V,
+    N_W,
+    ODRIVE_ERROR_DC_BUS_OVER_CURRENT,
+    ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT,
+    R_AB,
+    R_CODE,
+    R_DEAD,
+    R_G,
+    R_K0,
+    R_K1,
+    R_NF,
+    R_Q,
+    R_RNG,
+    R_SYS,
+    R_TAU,
+    R_V0,
+    R_V1,
+    R_W0,
+    R_W1,
+    S_BRAKE_I,
+    S_COUNT_F,
+    S_IBUS,
+    S_IBUS_MOTOR,
+    S_INTEGRATOR,
+    S_IQ,
+    S_IQ_MEAS,
+    S_OSC,
+    S_POS_EST,
+    S_POS_SP,
+    S_TQ_SP,
+    S_VEL_EST,
+    S_VEL_SP,
+    V_CNTF,
+    V_IBM,
+    V_INT,
+    V_IQ,
+    V_IQM,
+    V_OSC,
+    V_PE,
+    V_PSP,
+    V_TSP,
+    V_VE,
+    V_VSP,
+    W_AXERR,
+    W_COUNTS,
+    W_CTRLERR,
+    W_MODE,
+    W_MOTERR,
+)
+from .mechanics import _at, _mechanics_plain
+from .rng import _normal
+
+
+@njit(cache=True)
+def _vector_block(b0, b1, FR, C, AI):
+    """Whether legs b0..b1-1 of a plain block (see :func:`_plain_block`) can take
+    :func:`_run_block_vector`: no encoder reading error, and every axis in position control
+    or IDLE with its inputs passed through and no watchdog."""
+    for b in range(b0, b1):
+        if FR[b, F_ENC_ON] > 0.0:
+            return False
+        for a in range(2):
+            mode = AI[b, a, I_MODE]
+            if mode != MODE_IDLE and mode != MODE_POSITION:
+                return False
+            if C[b, a, C_INPUT_MODE] != INPUT_MODE_PASSTHROUGH or C[b, a, C_WD_ENABLE] > 0.0:
+                return False
+    return True
+
+
+@njit(cache=True, inline="always")
+def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, cpr, inv_cpr, enc_noise,
+                 cur_noise, quantize, N, kt_true, r_phase, inv_vbus):
+    """One tick of axis ``a`` (a constant) of leg ``i`` of a vectorized block, its joint at
+    ``q``: what the per-leg controller of :func:`_run_block` does for an axis in position
+    control or IDLE with passthrough inputs, the same operations in the same order,
+    branches turned into selects. Returns (rng, joint torque, bus current, abort code)."""
+    rv, rk, rw = R_V0 + a * N_V, R_K0 + a * N_K, R_W0 + a * N_W
+    # encoder and PLL: every tick, IDLE included
+    turns = dirn * (q - q_rest) * turns_per_rad
+    rng1, nz = _normal(rng)
+    raw = turns * cpr + enc_noise * nz
+    off = FB[_at(rk + K_OFF, i)]
+    rounded = math.floor(raw + 0.5)
+    counts = select(quantize, rounded, raw) + off
+    kp = FB[_at(rk + K_KP, i)]
+    ki = FB[_at(rk + K_KI, i)]
+    pe0 = FB[_at(rv + V_PE, i)]
+    ve0 = FB[_at(rv + V_VE, i)]
+    pe = pe0 + dt * ve0
+    delta = counts * inv_cpr - pe
+    pe += dt * kp * delta
+    ve = ve0 + dt * ki * delta
+    below = abs(ve) < 0.5 * dt * ki * inv_cpr
+    ve = select(below, 0.0, ve)
+    # the board's check, then overspeed
+    mode0 = IB[_at(rw + W_MODE, i)]
+    axis_err0 = IB[_at(rw + W_AXERR, i)]
+    mode = select(axis_err0 != 0, MODE_IDLE, mode0)
+    vel_limit = FB[_at(rk + K_VL, i)]
+    over = (mode != MODE_IDLE) & (abs(ve) > vel_limit * FB[_at(rk + K_VTOL, i)])
+    ctrl_err = IB[_at(rw + W_CTRLERR, i)] | select(over, CONTROLLER_ERROR_OVERSPEED, 0)
+    axis_err = axis_err0 | select(over, AXIS_ERROR_CONTROLLER_FAILED, 0)
+    active = (mode != MODE_IDLE) & (not over)
+    # position control with passthrough inputs
+    pos_sp = FB[_at(rk + K_IPOS, i)]
+    vel_in = FB[_at(rk + K_IVEL, i)]
+    tq_in = FB[_at(rk + K_ITQ, i)]
+    kt = FB[_at(rk + K_KT, i)]
+    vel_gain = FB[_at(rk + K_VG, i)]
+    current_lim = FB[_at(rk + K_CLIM, i)]
+    t_lim = current_lim * kt
+    abort_error = FB[_at(rk + K_AE, i)]
+    err = pos_sp - pe
+    checked = active & (abort_error > 0.0)
+    too_far = checked & (abs(err) > abort_error)
+    osc_on = checked & (not too_far)
+    o0, o1, o2 = FB[_at(rv + V_OSC, i)], FB[_at(rv + V_OSC + 1, i)], FB[_at(rv + V_OSC + 2, i)]
+    o3, o4, o5 = FB[_at(rv + V_OSC + 3, i)], FB[_at(rv + V_OSC + 4, i)], FB[_at(rv + V_OSC + 5, i)]
+    n0, n1, n2, n3, n4, n5, unstable = _oscillation_step(o0, o1, o2, o3, o4, o5, err, 0.025 * abort_error)
+    growing = osc_on & unstable
+    code_a = select(too_far, ABORT_POSITION_ERROR, select(growing, ABORT_OSCILLATION, ABORT_NONE))
+    vel_sp = py_min(py_max(vel_in, -vel_limit), vel_limit)
+    vel_des = FB[_at(rk + K_PG, i)] * (pos_sp - pe) + vel_sp
+    vel_des = py_min(py_max(vel_des, -vel_limit), vel_limit)
+    verr = vel_des - ve
+    integ0 = FB[_at(rv + V_INT, i)]
+    torque = vel_gain * verr + integ0 + tq_in
+    limited = (torque > t_lim) | (torque < -t_lim)
+    neg_t_lim = -t_lim
+    torque = select(torque > t_lim, t_lim, select(torque < neg_t_lim, neg_t_lim, torque))
+    decayed = integ0 * 0.99
+    grown = integ0 + FB[_at(rk + K_VIG, i)] * dt * verr
+    integ = select(limited, decayed, grown)
+    lim = FB[_at(rk + K_VIL, i)]
+    integ = py_min(py_max(integ, -lim), lim)
+    iq0 = FB[_at(rv + V_IQ, i)]
+    iq = iq0 + FB[_at(rk + K_ALPHA, i)] * (torque * FB[_at(rk + K_INVKT, i)] - iq0)
+    rng2, nz = _normal(rng1)
+    iq_meas = iq + cur_noise * nz
+    violated = active & (abs(iq_meas) > current_lim + CURRENT_LIM_MARGIN)
+    motor_err = IB[_at(rw + W_MOTERR, i)] | select(violated, MOTOR_ERROR_CURRENT_LIMIT_VIOLATION, 0)
+    axis_err = axis_err | select(violated, AXIS_ERROR_MOTOR_FAILED, 0)
+    iq = select(violated, 0.0, iq)
+    tau = dirn * N * kt_true * iq
+    w = ve * (2.0 * math.pi)
+    ib = (1.5 * r_phase * iq * iq + kt_true * iq * w) * inv_vbus
+    # write back: a dead leg keeps everything; an IDLE axis zeroes its outputs (the old
+    # values loaded first: a select between two loaded values vectorizes, a load
+    # under a condition does not)
+    cntf0 = FB[_at(rv + V_CNTF, i)]
+    counts_i0 = IB[_at(rw + W_COUNTS, i)]
+    iqm0 = FB[_at(rv + V_IQM, i)]
+    ibm0 = FB[_at(rv + V_IBM, i)]
+    psp0, vsp0, tsp0 = FB[_at(rv + V_PSP, i)], FB[_at(rv + V_VSP, i)], FB[_at(rv + V_TSP, i)]
+    ctrl_err0 = IB[_at(rw + W_CTRLERR, i)]
+    motor_err0 = IB[_at(rw + W_MOTERR, i)]
+    run = alive & active
+    idle = alive & (not active)
+    osc_new = run & osc_on
+    FB[_at(rv + V_PE, i)] = select(alive, pe, pe0)
+    FB[_at(rv + V_VE, i)] = select(alive, ve, ve0)
+    FB[_at(rv + V_CNTF, i)] = select(alive, counts, cntf0)
+    counts_i = np.int64(rounded + off)
+    IB[_at(rw + W_COUNTS, i)] = select(alive, counts_i, counts_i0)
+    FB[_at(rv + V_INT, i)] = select(run, integ, select(idle, 0.0, integ0))
+    FB[_at(rv + V_IQ, i)] = select(run, iq, select(idle, 0.0, iq0))
+    FB[_at(rv + V_IQM, i)] = select(run, iq_meas, select(idle, 0.0, iqm0))
+    FB[_at(rv + V_IBM, i)] = select(run, ib, select(idle, 0.0, ibm0))
+    FB[_at(rv + V_PSP, i)] = select(run, pos_sp, psp0)
+    FB[_at(rv + V_VSP, i)] = select(run, vel_in, vsp0)
+    FB[_at(rv + V_TSP, i)] = select(run, tq_in, tsp0)
+    FB[_at(rv + V_OSC, i)] = select(osc_new, n0, o0)
+    FB[_at(rv + V_OSC + 1, i)] = select(osc_new, n1, o1)
+    FB[_at(rv + V_OSC + 2, i)] = select(osc_new, n2, o2)
+    FB[_at(rv + V_OSC + 3, i)] = select(osc_new, n3, o3)
+    FB[_at(rv + V_OSC + 4, i)] = select(osc_new, n4, o4)
+    FB[_at(rv + V_OSC + 5, i)] = select(osc_new, n5, o5)
+    stopped = violated | (not active)
+    mode_new = select(stopped, MODE_IDLE, mode)
+    IB[_at(rw + W_MODE, i)] = select(alive, mode_new, mode0)
+    IB[_at(rw + W_AXERR, i)] = select(alive, axis_err, axis_err0)
+    IB[_at(rw + W_CTRLERR, i)] = select(alive, ctrl_err, ctrl_err0)
+    IB[_at(rw + W_MOTERR, i)] = select(alive, motor_err, motor_err0)
+    rng_out = select(run, rng2, select(alive, rng1, rng))
+    return rng_out, select(run, tau, 0.0), select(run, ib, 0.0), select(run, code_a, ABORT_NONE)
+
+
+@njit(cache=True, inline="always")
+def _stop_axis(i, a, FB, IB, fault, stop, motor_flag):
+    """Axis ``a`` (a constant) of leg ``i`` of a vectorized block after the bus check: a
+    bus fault's error flags, and for a fault or an abort (``stop``) IDLE, no current, the
+    integrator cleared."""
+    rv, rw = R_V0 + a * N_V, R_W0 + a * N_W
+    motor_err0, axis_err0, mode0 = IB[_at(rw + W_MOTERR, i)], IB[_at(rw + W_AXERR, i)], IB[_at(rw + W_MODE, i)]
+    iq0, integ0 = FB[_at(rv + V_IQ, i)], FB[_at(rv + V_INT, i)]
+    IB[_at(rw + W_MOTERR, i)] = motor_err0 | select(fault, motor_flag, 0)
+    IB[_at(rw + W_AXERR, i)] = axis_err0 | select(fault, AXIS_ERROR_MOTOR_FAILED, 0)
+    IB[_at(rw + W_MODE, i)] = select(stop, MODE_IDLE, mode0)
+    FB[_at(rv + V_IQ, i)] = select(stop, 0.0, iq0)
+    FB[_at(rv + V_INT, i)] = select(stop, 0.0, integ0)
+
+
+@njit(cache=True, error_model="numpy")
+def _control_vector(k, dt, FB, IB, nb, DRV):
+    """The controllers of a vectorized block for tick ``k``: one loop over its ``nb`` legs
+    doing what the per-leg controller of :func:`_run_block` does for axes in position
+    control or IDLE with passthrough inputs (the same operations in the same order,
+    branches turned into selects), then the DC bus and the safety abort. The state and
+    configuration of axis ``a`` are at rows R_V0/R_K0/R_W0 + a * N_V/N_K/N_W."""
+    N, cpr, dirn = DRV[0], DRV[1], DRV[2]
+    enc_noise, cur_noise, kt_true, r_phase = DRV[6], DRV[7], DRV[8], DRV[11]
+    quantize = DRV[9] > 0.0
+    j_of_a0 = int(DRV[5])
+    q_rest_joint0, q_rest_joint1 = DRV[3], DRV[4]
+    turns_per_rad = N / (2.0 * math.pi)
+    inv_cpr = 1.0 / cpr
+    for i in range(nb):
+        alive = IB[_at(R_DEAD, i)] == 0
+        inv_vbus = FB[_at(R_G + G_INV_VBUS, i)]
+        rng = np.uint64(IB[_at(R_RNG, i)])
+        ibus_sum = 0.0
+        # the joints' angles, read from fixed rows (a row chosen at run time would keep
+        # the compiler from proving the accesses independent)
+        q_joint0, q_joint1 = FB[_at(R_Q, i)], FB[_at(R_Q + 2, i)]
+        axis0_on_joint0 = j_of_a0 == 0
+        rng, tau_axis0, ib0, code0 = _axis_vector(
+            i, 0, FB, IB, select(axis0_on_joint0, q_joint0, q_joint1),
+            select(axis0_on_joint0, q_rest_joint0, q_rest_joint1), rng, alive, dt, dirn, turns_per_rad, cpr,
+            inv_cpr, enc_noise, cur_noise, quantize, N, kt_true, r_phase, inv_vbus)
+        rng, tau_axis1, ib1, code1 = _axis_vector(
+            i, 1, FB, IB, select(axis0_on_joint0, q_joint1, q_joint0),
+            select(axis0_on_joint0, q_rest_joint1, q_rest_joint0), rng, alive, dt, dirn, turns_per_rad, cpr,
+            inv_cpr, enc_noise, cur_noise, quantize, N, kt_true, r_phase, inv_vbus)
+        ibus_sum += ib0
+        ibus_sum += ib1
+        code = select(code1 != ABORT_NONE, code1, code0)
+        IB[_at(R_RNG, i)] = np.int64(rng)
+        FB[_at(R_TAU, i)] = select(axis0_on_joint0, tau_axis0, tau_axis1)
+        FB[_at(R_TAU + 1, i)] = select(axis0_on_joint0, tau_axis1, tau_axis0)
+        FB[_at(R_G + G_IBUS_AXES, i)] = ibus_sum
+        IB[_at(R_CODE, i)] = code
+    # a second loop for the board: one loop for everything would hold more memory accesses
+    # than the compiler groups for its run-time overlap checks, and it would not vectorize
+    for i in range(nb):
+        alive = IB[_at(R_DEAD, i)] == 0
+        inv_vbus = FB[_at(R_G + G_INV_VBUS, i)]
+        ibus_sum = FB[_at(R_G + G_IBUS_AXES, i)]
+        code = IB[_at(R_CODE, i)]
+        tau_joint0, tau_joint1 = FB[_at(R_TAU, i)], FB[_at(R_TAU + 1, i)]
+        # the DC bus: brake resistor, then the bus limits
+        brake = FB[_at(R_G + G_BRAKE_ON, i)] > 0.0
+        brake_i = -ibus_sum - FB[_at(R_G + G_MAX_REGEN, i)]
+        duty = brake_i * FB[_at(R_G + G_BRAKE_R, i)] * inv_vbus
+        duty = py_min(py_max(duty, 0.0), 0.95)
+        braking = duty * FB[_at(R_G + G_VBUS, i)] * FB[_at(R_G + G_INV_BRAKE_R, i)]
+        brake_i = select(brake, braking, 0.0)
+        with_brake = ibus_sum + brake_i
+        ibus_sum = select(brake, with_brake, ibus_sum)
+        brake_i0, ibus0 = FB[_at(R_G + G_BRAKE_I, i)], FB[_at(R_G + G_IBUS, i)]
+        FB[_at(R_G + G_BRAKE_I, i)] = select(alive, brake_i, brake_i0)
+        FB[_at(R_G + G_IBUS, i)] = select(alive, ibus_sum, ibus0)
+        over_pos = ibus_sum > FB[_at(R_G + G_DCP, i)]
+        over_neg = (not over_pos) & (ibus_sum < FB[_at(R_G + G_DCN, i)])
+        fault = alive & (over_pos | over_neg)
+        old_style = FB[_at(R_G + G_STYLE, i)] > 0.0
+        bus_flag = select(over_neg, MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT, MOTOR_ERROR_DC_BUS_OVER_CURRENT)
+        motor_flag = select(old_style, bus_flag, MOTOR_ERROR_SYSTEM_LEVEL)
+        sys_flag = select(over_neg, ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT, ODRIVE_ERROR_DC_BUS_OVER_CURRENT)
+        IB[_at(R_SYS, i)] = IB[_at(R_SYS, i)] | select(fault & (not old_style), sys_flag, 0)
+        # a bus fault or an abort: both axes IDLE, no current, integrators cleared
+        stop = fault | (alive & (code != ABORT_NONE))
+        _stop_axis(i, 0, FB, IB, fault, stop, motor_flag)
+        _stop_axis(i, 1, FB, IB, fault, stop, motor_flag)
+        FB[_at(R_TAU, i)] = select(stop, 0.0, tau_joint0)
+        FB[_at(R_TAU + 1, i)] = select(stop, 0.0, tau_joint1)
+        ab_tick, ab_reason = IB[_at(R_AB, i)], IB[_at(R_AB + 1, i)]
+        first = alive & (code != ABORT_NONE) & (ab_reason == ABORT_NONE)
+        IB[_at(R_AB, i)] = select(first, k, ab_tick)
+        IB[_at(R_AB + 1, i)] = select(first, code, ab_reason)
+
+
+@njit(cache=True)
+def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT, REC, rec_every,
+                      rec_offset):
+    """Legs b0..b1-1 of :func:`_run` when :func:`_vector_block` allows: the state copied
+    into the block's rows, then per tick one loop over the legs for the controllers
+    (:func:`_control_vector`) and one for the mechanics (:func:`_mechanics_plain`), both
+    of which vectorize; the numbers are those of :func:`_run_block`."""
+    nb = b1 - b0
+    FB = np.zeros(N_FROWS * LANES)
+    IB = np.zeros(N_IROWS * LANES, np.int64)
+    f_slots = (S_POS_EST, S_VEL_EST, S_INTEGRATOR, S_IQ, S_IQ_MEAS, S_COUNT_F, S_POS_SP, S_VEL_SP, S_TQ_SP,
+               S_IBUS_MOTOR, S_OSC, S_OSC + 1, S_OSC + 2, S_OSC + 3, S_OSC + 4, S_OSC + 5)
+    w_slots = (I_MODE, I_AXIS_ERR, I_CTRL_ERR, I_MOTOR_ERR, I_COUNTS)
+    for i in range(nb):
+        b = b0 + i
+        for n in range(5):
+            FB[_at(R_Q + n, i)] = X[b, n]
+        IB[_at(R_DEAD, i)] = 1 if ABORT[b, 1] == ABORT_NONFINITE else 0
+        IB[_at(R_RNG, i)] = np.int64(RNG[b])
+        for a in range(2):
+            rv = R_V0 if a == 0 else R_V1
+            rk = R_K0 if a == 0 else R_K1
+            rw = R_W0 if a == 0 else R_W1
+            for n in range(N_V):
+                FB[_at(rv + n, i)] = AS[b, a, f_slots[n]]
+            for n in range(N_W):
+                IB[_at(rw + n, i)] = AI[b, a, w_slots[n]]
+            for n in range(len(K_FROM_C)):
+                FB[_at(rk + K_FROM_C[n][0], i)] = C[b, a, K_FROM_C[n][1]]
+            kp = 2.0 * C[b, a, C_ENCODER_BW]
+            FB[_at(rk + K_KP, i)] = kp
+            FB[_at(rk + K_KI, i)] = 0.25 * kp * kp
+            FB[_at(rk + K_ALPHA, i)] = 1.0 - math.exp(-C[b, a, C_CURRENT_BW] * dt)
+            FB[_at(rk + K_INVKT, i)] = 1.0 / C[b, a, C_KT]
+        FB[_at(R_G + G_BRAKE_ON, i)] = C[b, 0, C_BRAKE_ON]
+        FB[_at(R_G + G_BRAKE_R, i)] = C[b, 0, C_BRAKE_R]
+        FB[_at(R_G + G_MAX_REGEN, i)] = C[b, 0, C_MAX_REGEN]
+        FB[_at(R_G + G_DCP, i)] = C[b, 0, C_DC_MAX_POS]
+        FB[_at(R_G + G_DCN, i)] = C[b, 0, C_DC_MAX_NEG]
+        FB[_at(R_G + G_VBUS, i)] = C[b, 0, C_VBUS]
+        FB[_at(R_G + G_STYLE, i)] = C[b, 0, C_REGEN_ERR_STYLE]
+        FB[_at(R_G + G_INV_VBUS, i)] = 1.0 / C[b, 0, C_VBUS]
+        FB[_at(R_G + G_INV_BRAKE_R, i)] = 1.0 / C[b, 0, C_BRAKE_R]
+        FB[_at(R_G + G_IBUS, i)] = AS[b, 0, S_IBUS]
+        FB[_at(R_G + G_BRAKE_I, i)] = AS[b, 0, S_BRAKE_I]
+        IB[_at(R_SYS, i)] = AI[b, 0, I_SYS_ERR]
+        IB[_at(R_AB, i)] = ABORT[b, 0]
+        IB[_at(R_AB + 1, i)] = ABORT[b, 1]
+    P_plain = P[b0:b0 + 1]
+    FR_plain = FR[b0:b0 + 1]
+    n_rec = REC.shape[1]
+    next_rec = 0 if rec_every > 0 else -1
+    for k in range(n_ticks):
+        if k == next_rec:
+            next_rec += rec_every
+            r = rec_offset + k // rec_every
+            if 0 <= r < n_rec:
+                for i in range(nb):
+                    if IB[_at(R_DEAD, i)] == 0:
+                        b = b0 + i
+                        REC[b, r, 0] = FB[_at(R_Q + 4, i)]
+                        REC[b, r, 1] = FB[_at(R_V0 + V_CNTF, i)]
+                        REC[b, r, 2] = FB[_at(R_V1 + V_CNTF, i)]
+                        REC[b, r, 3] = FB[_at(R_V0 + V_IQM, i)]
+                        REC[b, r, 4] = FB[_at(R_V1 + V_IQM, i)]
+        _control_vector(k, dt, FB, IB, nb, DRV)
+        _mechanics_plain(dt, FB, IB, nb, P_plain, FR_plain)
+        for i in range(nb):
+            if IB[_at(R_NF, i)] != 0:
+                IB[_at(R_AB, i)] = k
+                IB[_at(R_AB + 1, i)] = ABORT_NONFINITE
+                IB[_at(R_W0 + W_MODE, i)] = MODE_IDLE
+                IB[_at(R_W1 + W_MODE, i)] = MODE_IDLE
+                IB[_at(R_DEAD, i)] = 1
+    for i in range(nb):
+        b = b0 + i
+        for n in range(5):
+            X[b, n] = FB[_at(R_Q + n, i)]
+        RNG[b] = np.uint64(IB[_at(R_RNG, i)])
+        for a in range(2):
+            rv = R_V0 if a == 0 else R_V1
+            rw = R_W0 if a == 0 else R_W1
+            for n in range(N_V):
+                AS[b, a, f_slots[n]] = FB[_at(rv + n, i)]
+            for n in range(N_W):
+                AI[b, a, w_slots[n]] = IB[_at(rw + n, i)]
+        AS[b, 0, S_IBUS] = FB[_at(R_G + G_IBUS, i)]
+        AS[b, 0, S_BRAKE_I] = FB[_at(R_G + G_BRAKE_I, i)]
+        AI[b, 0, I_SYS_ERR] = IB[_at(R_SYS, i)]
+        ABORT[b, 0] = IB[_at(R_AB, i)]
+        ABORT[b, 1] = IB[_at(R_AB + 1, i)]

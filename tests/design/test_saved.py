@@ -1,0 +1,143 @@
+"""Designs as files: exact round trips, provenance, and errors that name the field."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+import leglib as lg
+from leglib import model as M
+from leglib.design import saved as designs
+from leglib.design import statefeedback as SF
+from leglib.design.saved import DesignFileError, GainDesign
+
+
+@pytest.fixture(scope="module")
+def sf_designs(leg):
+    thesis = SF.place_poles(M.linearize(leg), SF.THESIS_POLES, 6.0)
+    # complex poles and integral action on the coupled five-bar: every optional field set
+    coupled = SF.place_poles(M.linearize(leg, coupled=True, model="fivebar"), (-6 + 3j, -6 - 3j, -15, -15.5), 4.5,
+                        integral_poles=SF.spread_poles(-4.0, 2))
+    return thesis, coupled
+
+
+def test_state_feedback_round_trip_is_exact(tmp_path, sf_designs):
+    for i, d in enumerate(sf_designs):
+        path = designs.save(tmp_path / f"d{i}.json", d, linearization={"leg": "thesis", "q0_rad": [4.66, 4.76]})
+        back = designs.load(path)
+        assert isinstance(back, SF.StateFeedback)
+        assert designs.same(back, d)
+        for name in ("K", "L", "Nbar", "poles", "observer_poles"):
+            assert np.array_equal(getattr(back, name), getattr(d, name)), name
+            assert getattr(back, name).dtype.kind == np.asarray(getattr(d, name)).dtype.kind, name
+        assert np.array_equal(back.sys.A, d.sys.A) and np.array_equal(back.sys.B, d.sys.B)
+        # the loaded design behaves as the saved one: same closed-loop eigenvalues
+        assert np.array_equal(np.linalg.eigvals(back.sys.A - back.sys.B @ back.K),
+                              np.linalg.eigvals(d.sys.A - d.sys.B @ d.K))
+        data = designs.read(path)
+        assert data["kind"] == "state_feedback"
+        assert data["observer_factor"] == pytest.approx([6.0, 4.5][i])
+        assert data["linearization"]["about"]["leg"] == "thesis"
+    assert sf_designs[1].Ki is not None and designs.load(tmp_path / "d1.json").Ki is not None
+
+
+def test_gain_design_round_trip_is_exact(tmp_path):
+    g = GainDesign(target=(0.24, 5.0), gains=(47.123456789, 0.0461234567891, 0.001), method="map",
+                   predicted=(0.2391, 4.987), measured=(0.229, 5.06),
+                   source={"sweep_dir": "data/raw/sweep_thesis_grid", "counts": {"ok": 398, "unstable": 2},
+                           "values": np.array([1.0, 1 / 3])})
+    back = designs.load(designs.save(tmp_path / "g.json", g, backend="virtual", serial="3A7F1E2D4B0B"))
+    assert back == g and designs.same(back, g)
+    assert back.gains == (47.123456789, 0.0461234567891, 0.001)
+    assert back.source["values"] == [1.0, 1 / 3]
+    # optional parts may be absent
+    bare = GainDesign(target=(0.5, 3), gains=(20, 0.1, 0.0), method="model")
+    assert designs.load(designs.save(tmp_path / "bare.json", bare)) == bare
+
+
+def test_file_is_readable_with_provenance(tmp_path, sf_designs):
+    from leglib import __version__
+    with lg.connect("virtual", seed=3) as dev:
+        path = designs.save(tmp_path / "d.json", sf_designs[0], device=dev, note="thesis poles")
+        serial = f"{int(dev.serial_number):012X}"
+    text = path.read_text()
+    assert '"K": [' in text and text.count("\n") > 40      # one value per line, not one long line
+    prov = json.loads(text)["provenance"]
+    assert prov["leglib_version"] == __version__
+    assert prov["backend"] == "virtual" and prov["device_serial"] == serial
+    assert prov["git_commit"] and prov["date"].endswith("+00:00")
+
+
+def _edit(path, fn):
+    data = json.loads(path.read_text())
+    fn(data)
+    path.write_text(json.dumps(data))
+    return path
+
+
+@pytest.mark.parametrize("edit, field", [
+    (lambda d: d.pop("K"), "'K' is missing"),
+    (lambda d: d.__setitem__("K", [[1.0, 2.0]]), "'K' must be a 2 x 4 array"),
+    (lambda d: d.__setitem__("L", "many"), "'L' must be a 4 x 2 array"),
+    (lambda d: d["linearization"].__setitem__("A", [[1.0, 2.0]]), "'linearization.A' must be square"),
+    (lambda d: d.__setitem__("poles", {"re": [1, 2, 3, 4]}), "'poles' as a complex array"),
+    (lambda d: d.__setitem__("Nbar", [[1.0, None], [0.0, 1.0]]), "'Nbar' must hold finite numbers"),
+    (lambda d: d.__setitem__("observer_factor", "six"), "'observer_factor' must be a finite number"),
+    (lambda d: d.__setitem__("kind", "pid"), "'kind' must be one of"),
+    (lambda d: d.__setitem__("format", 99), "'format' is 99"),
+    (lambda d: d["provenance"].pop("git_commit"), "'provenance.git_commit' must be a string"),
+    (lambda d: d.__setitem__("controllability_rank", 7), "'controllability_rank' must be an integer in [0, 4]"),
+    (lambda d: d.__setitem__("Ki", [[1.0, 0.0], [0.0, 1.0]]), "'Ki' and 'integral_poles'"),
+])
+def test_malformed_state_feedback_file_names_the_field(tmp_path, sf_designs, edit, field):
+    path = _edit(designs.save(tmp_path / "d.json", sf_designs[0]), edit)
+    with pytest.raises(DesignFileError) as err:
+        designs.load(path)
+    assert field in str(err.value) and str(path) in str(err.value)
+
+
+@pytest.mark.parametrize("edit, field", [
+    (lambda d: d["gains"].pop("vel_gain"), "'gains.vel_gain' is missing"),
+    (lambda d: d["gains"].__setitem__("pos_gain", True), "'gains.pos_gain' must be a finite number"),
+    (lambda d: d["target"].__setitem__("fn_hz", "5 Hz"), "'target.fn_hz' must be a finite number"),
+    (lambda d: d.__setitem__("measured", [0.2, 5.0]), "'measured' must be an object"),
+    (lambda d: d.__setitem__("source", None), "'source' must be a JSON object"),
+])
+def test_malformed_gain_file_names_the_field(tmp_path, edit, field):
+    g = GainDesign(target=(0.24, 5.0), gains=(50, 0.046, 0.001), method="map", measured=(0.23, 5.1))
+    path = _edit(designs.save(tmp_path / "g.json", g), edit)
+    with pytest.raises(DesignFileError, match=field.replace("(", r"\(").replace("[", r"\[")):
+        designs.load(path)
+
+
+def test_kind_asked_for(tmp_path, sf_designs):
+    path = designs.save(tmp_path / "d.json", sf_designs[0])
+    assert designs.same(designs.load(path, kind="state_feedback"), sf_designs[0])
+    with pytest.raises(DesignFileError, match="'kind' is 'state_feedback', but a 'cascade_gains' design is needed"):
+        designs.load(path, kind="cascade_gains")
+
+
+def test_not_json_or_absent(tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"kind": "state_feedback",\n "K": [1, 2,]}')
+    with pytest.raises(DesignFileError, match="not valid JSON \\(line 2"):
+        designs.load(bad)
+    with pytest.raises(DesignFileError, match="no such design file"):
+        designs.load(tmp_path / "absent.json")
+    with pytest.raises(TypeError, match="StateFeedback .place_poles. or a GainDesign"):
+        designs.save(tmp_path / "x.json", {"K": 1})
+
+
+def test_gain_design_from_model_and_map_record_their_source():
+    class FakeModel:
+        params = {"inertia_scale": 1.1, "payload_mass": 0.05}
+        experiments, rms_turns, step, duration, sample_period = 5, 1e-4, 0.4, 1.5, 0.002
+
+        def gains_for(self, zeta, fn, vel_integrator_gain=0.01):
+            return (40.0, 0.05, vel_integrator_gain), (zeta * 1.01, fn * 0.99)
+
+    g = designs.gain_design_from_model(FakeModel(), 0.24, 5.0)
+    assert g.gains == (40.0, 0.05, 0.01) and g.predicted == pytest.approx((0.2424, 4.95))
+    assert g.source["plant_params"]["payload_mass"] == 0.05 and g.method == "model"
+    assert math.isfinite(g.source["rms_turns"])

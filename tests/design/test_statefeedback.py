@@ -1,0 +1,104 @@
+"""Pole placement, observer, Nbar, errors, and the closed loop on the nonlinear leg."""
+
+import math
+
+import numpy as np
+import pytest
+
+import leglib as lg
+from leglib import model as M
+from leglib.design import statefeedback as SF
+
+
+@pytest.fixture(scope="module")
+def sys_thesis(leg):
+    return M.linearize(leg)
+
+
+def _rel(a, b):
+    a, b = np.sort_complex(np.asarray(a, complex)), np.sort_complex(np.asarray(b, complex))
+    return np.max(np.abs(a - b) / np.abs(b))
+
+
+@pytest.mark.parametrize("poles", [SF.THESIS_POLES, (-3 + 4j, -3 - 4j, -10, -12), (-5, -5, -9, -9),
+                                   (-2, -20, -2.5, -30)])
+def test_placed_poles_are_the_eigenvalues(sys_thesis, poles):
+    d = SF.place_poles(sys_thesis, poles)
+    A, B, C = sys_thesis.A, sys_thesis.B, sys_thesis.C
+    assert _rel(np.linalg.eigvals(A - B @ d.K), poles) < 1e-6
+    assert _rel(np.linalg.eigvals(A - d.L @ C), 6 * np.asarray(poles)) < 1e-6
+    assert d.controllable and d.observable
+
+
+def test_observer_factor_and_coupled_models(leg):
+    for sys in (M.linearize(leg, coupled=True), M.linearize(leg, coupled=True, model="fivebar")):
+        d = SF.place_poles(sys, (-6, -6.5, -7, -7.5), observer_factor=4)
+        assert _rel(np.linalg.eigvals(sys.A - d.L @ sys.C), 4 * np.array([-6, -6.5, -7, -7.5])) < 1e-6
+
+
+def test_nbar_gives_zero_steady_state_error_on_the_linear_model(sys_thesis):
+    d = SF.place_poles(sys_thesis)
+    r = np.array([0.1, -0.3])
+    A, B, C = sys_thesis.A, sys_thesis.B, sys_thesis.C
+    x_ss = np.linalg.solve(-(A - B @ d.K), B @ d.Nbar @ r)
+    np.testing.assert_allclose(C @ x_ss, r, rtol=1e-9, atol=1e-12)
+    y = d.predicted_step(r, np.linspace(0, 3, 601))
+    np.testing.assert_allclose(y[-1], r, rtol=1e-3)
+
+
+def test_integral_design_places_all_six_poles(sys_thesis):
+    d = SF.place_poles(sys_thesis, integral_poles=(-4, -4.007))
+    A, B, C = sys_thesis.A, sys_thesis.B, sys_thesis.C
+    Aa = np.block([[A - B @ d.K, -B @ d.Ki], [C, np.zeros((2, 2))]])
+    assert _rel(np.linalg.eigvals(Aa), list(SF.THESIS_POLES) + [-4, -4.007]) < 1e-6
+
+
+@pytest.mark.parametrize("poles,message", [
+    ((-7, -7.007, 0.5, -8), "open left half plane"),
+    ((-7, -7.007, -3 + 2j, -9), "no conjugate partner"),
+    ((-7, -7.007, -7.014), "3 given, the system has 4 states"),
+    ((-7, -7, -7, -8), "repeated 3 times but rank"),
+    ((-7, -8, np.nan, -9), "finite"),
+])
+def test_bad_poles_are_clear_errors(sys_thesis, poles, message):
+    with pytest.raises(SF.PoleError, match=message):
+        SF.place_poles(sys_thesis, poles)
+
+
+def test_parse_poles():
+    np.testing.assert_allclose(SF.parse_poles("-7, -7.007, -7.014, -7.021"), SF.THESIS_POLES)
+    assert SF.parse_poles("-3+4j, -3-4j, -10, -11")[0] == complex(-3, 4)
+    with pytest.raises(SF.PoleError, match="cannot read pole 'x'"):
+        SF.parse_poles("-7, x")
+
+
+def test_controller_matches_continuous_observer_for_small_periods(sys_thesis, leg):
+    d = SF.place_poles(sys_thesis)
+    c = SF.Controller(d, leg.q0, (0.0, 0.0), period=1e-4)
+    # after many samples of a constant measurement the estimate converges to a steady state
+    # of the continuous observer with u from the control law
+    for _ in range(20000):
+        c.update(np.array(leg.q0) + [0.01, -0.02], (0.0, 0.0))
+    assert np.allclose(c.xhat[[0, 2]], [0.01, -0.02], atol=2e-3)
+
+
+def test_nonlinear_closed_loop_reproduces_the_thesis_skew(leg):
+    d = SF.place_poles(M.linearize(leg))
+    res = lg.simulate_closed_loop(leg, d, duration=3.0, torque_limit=0.73)
+    target = leg.q2 + math.radians(20)
+    assert res.x[-1, 2] > target  # "a skew over the required 290 deg" (thesis 5.5)
+    assert np.all(np.abs(res.tau) <= 0.73 + 1e-12)
+    quantum = 2 * math.pi / 12000
+    np.testing.assert_allclose(np.round(res.y / quantum) * quantum, res.y)
+
+
+def test_identified_design_settles_within_2_percent_live_on_the_twin(leg):
+    ident = leg.scaled(0.9, 1.05).replace(c11=0.0025, c22=0.0022, c12=0.0, c21=0.0, coulomb1=0.012,
+                                          coulomb2=0.015)
+    d = SF.place_poles(M.linearize(ident, coupled=True, model="fivebar"), integral_poles=(-4, -4.007))
+    with lg.connect("virtual", seed=3) as odrv:
+        lg.configure(odrv)
+        lg.calibrate(odrv)
+        run = SF.run_live(odrv, d, ident, duration=4.5)
+    m = SF.response_metrics(run.t, run.q2, leg.q2, leg.q2 + math.radians(20))
+    assert m["final_error_pct"] < 2.0 and m["settling_time"] < 4.5

@@ -1,0 +1,151 @@
+"""Batch re-runs: a 6-run grid on a Dask LocalCluster, failures reported, reruns skipped."""
+
+import json
+
+import pytest
+
+from leglib.notebook import batch
+
+SPEC = """
+name = "{name}"
+notebooks = ["01_derivation"]
+[parameters]
+smoke = true
+[grid]
+torque_step = [0.002, 0.004, 0.006]
+grid_n = [{bad}, 6]
+"""
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    dd = pytest.importorskip("dask.distributed")
+    c = dd.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
+    yield c
+    c.close()
+
+
+def test_six_runs_on_a_local_cluster_with_a_failure_and_a_rerun(tmp_path, cluster):
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC.format(name="demo", bad=2))  # grid_n = 2 is refused by notebook 01
+    results = batch.run_batch(spec, tmp_path / "out", cluster=cluster, progress=False)
+    assert len(results) == 6
+    done = [r for r in results.values() if r["status"] == "done"]
+    failed = [r for r in results.values() if r["status"] == "failed"]
+    assert len(done) == 3 and len(failed) == 3
+    for r in failed:
+        assert r["notebook"] == "01_derivation" and r["cell"] is not None
+        assert "grid_n" in r["error"]
+    for r in done:
+        assert r["metrics"]["01_derivation"]["eq511_max_rel_error"] < 0.01
+    root = tmp_path / "out" / "demo"
+    index = (root / "index.html").read_text()
+    assert index.count("<tr>") == 7 and "failed" in index
+    assert (root / "summary.png").stat().st_size > 1000
+    # a rerun skips the finished runs and retries the failed ones
+    stamps = {p: p.stat().st_mtime_ns for p in root.glob("*/status.json")
+              if json.loads(p.read_text())["status"] == "done"}
+    batch.run_batch(spec, tmp_path / "out", cluster=cluster, progress=False)
+    assert all(p.stat().st_mtime_ns == t for p, t in stamps.items())
+
+
+def test_bad_specs_are_named(tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_text('name = "x"\nnotebooks = ["99_nope"]\n')
+    with pytest.raises(batch.SpecError, match="notebook '99_nope' not found"):
+        batch.load_spec(p)
+    p.write_text('notebooks = ["01_derivation"]\n')
+    with pytest.raises(batch.SpecError, match="field 'name'"):
+        batch.load_spec(p)
+    # a parameter no notebook of the spec takes would be dropped silently: refused
+    p.write_text('name = "x"\nnotebooks = ["01_derivation"]\n[grid]\nseed = [1, 2]\n')
+    with pytest.raises(batch.SpecError, match=r"grid\.seed is not a parameter of 01_derivation"):
+        batch.load_spec(p)
+    p.write_text('name = "x"\nnotebooks = ["04_pid_sweeps", "05_validation"]\n[grid]\npayload_mass = [0.0]\n')
+    assert batch.load_spec(p)["grid"] == {"payload_mass": [0.0]}
+
+
+def test_cli_reports_a_bad_spec_without_a_traceback(tmp_path, capsys):
+    from leglib.notebook.cli import main
+    p = tmp_path / "s.toml"
+    p.write_text('name = "x"\nnotebooks = ["01_derivation"]\n[parameters]\npayload = 1.0\n')
+    assert main(["batch", str(p), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "parameters.payload is not a parameter of 01_derivation" in err
+    assert not (tmp_path / "out").exists()  # nothing ran
+
+
+@pytest.mark.parametrize("text,message", [
+    ('name = "x"\nnotebooks = ["01_derivation"]\nnotebook = ["02_friction_fitting"]\n',
+     "unknown key 'notebook'; did you mean 'notebooks'?"),
+    ('name = "x"\nnotebooks = ["01_derivation"]\n[parameter]\nsmoke = true\n',
+     "unknown key 'parameter'; did you mean 'parameters'?"),
+    ('name = ".."\nnotebooks = ["01_derivation"]\n', "field 'name' must be a plain directory name"),
+    ('name = "a/b"\nnotebooks = ["01_derivation"]\n', "field 'name' must be a plain directory name"),
+    ('name = "' + "a" * 300 + '"\nnotebooks = ["01_derivation"]\n', "at most 64 characters"),
+    ('name = "x"\nnotebooks = ["../notebooks/01_derivation"]\n', "is not a notebook name"),
+    ('name = "x"\nnotebooks = [1]\n', "1 is not a notebook name"),
+    ('name = "x"\nnotebooks = ["01_derivation"]\n[parameters]\nsmoke = "no"\n',
+     "parameters.smoke = 'no': expected bool"),
+    ('name = "x"\nnotebooks = ["01_derivation"]\n[grid]\ngrid_n = [6, 6]\n', "grid.grid_n repeats a value"),
+    ('name = "x"\nnotebooks = ["01_derivation"]\n[grid]\ngrid_n = [6.5]\n', "grid.grid_n = 6.5: expected int"),
+    ('name = "x"\nnotebooks = ["01_derivation"]\n[parameters]\ngrid_n = 6\n[grid]\ngrid_n = [7]\n',
+     "grid_n is both in [parameters] and in [grid]"),
+    ('name = "x"\nnotebooks = ["01_derivation"]\n[parameters]\ngird_n = 6\n', "did you mean 'grid_n'?"),
+])
+def test_spec_refuses_unknown_keys_bad_names_and_types(tmp_path, text, message):
+    p = tmp_path / "s.toml"
+    p.write_text(text)
+    with pytest.raises(batch.SpecError) as err:
+        batch.load_spec(p)
+    assert message in str(err.value) and str(p) in str(err.value)
+    assert len(str(err.value)) < 500
+
+
+def test_spec_that_is_not_a_readable_utf8_file(tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_bytes('name = "caf\u00e9"\nnotebooks = ["01_derivation"]\n'.encode("latin-1"))
+    with pytest.raises(batch.SpecError, match=r":1: not UTF-8 text \(byte 0xe9\)"):
+        batch.load_spec(p)
+    d = tmp_path / "dir.toml"
+    d.mkdir()
+    with pytest.raises(batch.SpecError, match="not a regular file"):
+        batch.load_spec(d)
+
+
+def test_run_ids_are_plain_directory_names():
+    spec = {"name": "x", "notebooks": ["04_pid_sweeps"], "parameters": {},
+            "grid": {"plant": ["../../etc", "a" * 300]}}
+    ids = [r["id"] for r in batch.runs_of(spec)]
+    assert len(set(ids)) == 2
+    assert all("/" not in i and len(i) <= 90 and i not in (".", "..") for i in ids)
+
+
+def test_index_shows_the_payload_study_answer(tmp_path):
+    """The index of the payload spec: notebook 05's errors against the payload (with units),
+    not the alphabetically first metrics; every run linked to its reports."""
+    spec = batch.load_spec("data/batch_payload.toml")
+    runs = batch.runs_of(spec)
+    results = {}
+    for k, r in enumerate(runs):
+        (tmp_path / r["id"]).mkdir()
+        for nb in spec["notebooks"]:
+            (tmp_path / r["id"] / f"{nb}.html").write_text("<html></html>")
+        err = 0.01 * (k + 1)  # errors growing with the payload, as a study would show
+        results[r["id"]] = {"status": "done", "params": r["params"], "metrics": {
+            "04_pid_sweeps": {"achievable": 100, "bldc": {"x": {"zeta": 1.0}}, "counts": {"ok": 300, "unstable": 30},
+                              "map_s": 0.5, "sweep_s": 2.0},
+            "05_validation": {"summary": {"map": {"median": err, "worst": 2 * err},
+                                          "model": {"median": err / 2, "worst": err}},
+                              "thesis_target": {"error_zeta": -err, "error_fn": err / 3}}}}
+        (tmp_path / r["id"] / "status.json").write_text(json.dumps(results[r["id"]]))
+    index = batch.write_index(tmp_path, runs, results, spec["notebooks"]).read_text()
+    assert "payload_mass [kg]" in index
+    assert "05: map method: median error [%]" in index and "05: model method: worst error [%]" in index
+    assert "bldc" not in index and "map_s" not in index and "sweep_s" not in index
+    for k, r in enumerate(runs):
+        assert f"<a href='{r['id']}/05_validation.html'>" in index and f"<a href='{r['id']}/status.json'>" in index
+        assert f"<td>{100 * 0.01 * (k + 1):.4g}</td>" in index  # the map's median error in %
+    assert (tmp_path / "summary.png").stat().st_size > 5000
+    vals = batch.summary_values(results[runs[-1]["id"]])
+    assert vals[("05_validation", "map method: worst error", "%")] == pytest.approx(2 * 0.01 * len(runs) * 100)

@@ -1,0 +1,102 @@
+"""The ipywidgets panels in-process: moving a slider sets the readout to exactly what the
+leglib functions compute for the new value (the browser test checks the same in JupyterLab)."""
+
+import matplotlib
+
+import leglib as lg
+from leglib import model as M
+from leglib.design.points import identify_response
+from leglib.notebook import widgets
+
+matplotlib.use("Agg")
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+
+def _readout_html(text):
+    return f"<code class='leglib-readout'>{text}</code>"
+
+
+def test_pole_panel_readout_follows_sliders(leg):
+    sys = M.linearize(leg)
+    panel = widgets.pole_placement_panel(sys, center=-7.0, spread=0.007, observer_factor=6.0)
+    (s_center, _s_spread, s_obs), readout = panel.children[0].children, panel.children[1]
+    assert readout.value == _readout_html(widgets.design_readout(widgets.pole_panel_design(sys, -7.0, 0.007, 6.0)))
+    s_center.value = -12.5
+    s_obs.value = 4.0
+    d = widgets.pole_panel_design(sys, -12.5, 0.007, 4.0)
+    expected = widgets.design_readout(d)
+    assert readout.value == _readout_html(expected)
+    # the readout's K is the gain that places the asked poles
+    eig = np.sort(np.linalg.eigvals(sys.A - sys.B @ d.K).real)
+    assert eig == pytest.approx(sorted([-12.5, -12.507, -12.514, -12.521]), rel=1e-6)
+    assert "  " not in expected  # single spaces: the browser shows this string exactly
+
+
+def test_gain_panel_readout_follows_sliders(leg):
+    def device():
+        dev = lg.connect("virtual", leg=leg, seed=5)
+        lg.configure(dev)
+        lg.calibrate(dev)
+        return dev
+
+    with device() as dev:
+        panel = widgets.gain_step_panel(dev)
+        (s_pos, _s_vel, _s_int), readout = panel.children[0].children, panel.children[1]
+        s_pos.value = 40.0
+        shown = readout.value
+    with device() as ref:  # the same device history, replayed without the panel
+        lg.step_response(ref, 50.0, 0.046, 0.001)
+        expected = widgets.step_readout(lg.step_response(ref, 40.0, 0.046, 0.001), leg=ref.leg)
+    assert expected.startswith("zeta = ") and shown == _readout_html(expected)
+    assert "at the foot m = " in expected and "N/m" in expected   # eqs. 6.1/6.3
+
+
+def test_pole_panel_complex_poles_nonlinear_preview_and_saturation(leg):
+    sys = M.linearize(leg)
+    panel = widgets.pole_placement_panel(sys, leg=leg, torque_limit=0.73)
+    (s_center, _, _), readout = panel.children[0].children, panel.children[1]
+    (s_zeta, t_poles), warning, _out = panel.children[2].children, panel.children[3], panel.children[4]
+    assert warning.value == ""  # the thesis design stays far below the torque limit
+    # a damping below one: two complex pairs, placed exactly
+    s_zeta.value = 0.5
+    d = widgets.pole_panel_design(sys, -7.0, 0.007, 6.0, zeta=0.5)
+    assert readout.value == _readout_html(widgets.design_readout(d))
+    wn = np.abs(d.poles)
+    assert np.iscomplexobj(d.poles) and np.allclose(-d.poles.real / wn, 0.5)
+    eig = np.linalg.eigvals(sys.A - sys.B @ d.K)
+    assert np.sort_complex(eig) == pytest.approx(np.sort_complex(d.poles), rel=1e-6)
+    # any valid set as text, complex allowed; an invalid one is explained
+    t_poles.value = "-3+4j, -3-4j, -10, -11"
+    d = widgets.pole_panel_design(sys, -7.0, 0.007, 6.0, poles="-3+4j, -3-4j, -10, -11")
+    assert readout.value == _readout_html(widgets.design_readout(d))
+    t_poles.value = "-3+4j, -10, -11, -12"
+    assert readout.value.startswith("<b>cannot place:</b>")
+    t_poles.value = ""
+    # fast real poles: K asks for more than the torque limit, and the panel says so
+    s_zeta.value = 1.0
+    s_center.value = -30.0
+    d = widgets.pole_panel_design(sys, -30.0, 0.007, 6.0)
+    tau = widgets.demanded_torque(d, (0.0, np.radians(20.0)), np.linspace(0, 2, 401))
+    assert np.abs(tau).max() > 0.73
+    assert "torque limit" in warning.value and "saturate" in warning.value
+    assert "preview failed" not in warning.value  # the nonlinear leg, limited, was simulated
+
+
+def test_gain_panel_shows_fit_and_refuses_non_second_order_steps(leg):
+    with lg.connect("virtual", leg=leg, seed=5) as dev:
+        lg.configure(dev)
+        lg.calibrate(dev)
+        panel = widgets.gain_step_panel(dev)
+        (s_pos, s_vel, s_int), readout = panel.children[0].children, panel.children[1]
+        assert "R^2 = " in readout.value
+        # vel_gain at its minimum: the leg barely damps, the response is no second-order step
+        s_vel.value = s_vel.min
+        s_int.value = 0.0
+        s_pos.value = 30.0
+        shown = readout.value
+        r = lg.step_response(dev, 30.0, s_vel.min, 0.0)
+    p = identify_response(r)
+    assert p.status != "ok" and "zeta" not in shown, shown
+    assert ("not a second-order step" in shown) == (p.status == "failed")
