@@ -69,7 +69,6 @@ from .layout import (
     C_VEL_TOL,
     C_WD_ENABLE,
     CONTROLLER_ERROR_OVERSPEED,
-    CURRENT_LIM_MARGIN,
     F_BELT_K,
     F_ENC_ON,
     I_AXIS_ERR,
@@ -120,6 +119,21 @@ from .layout import (
 )
 from .mechanics import _at, _mechanics_leg, _mechanics_plain, _param_row, _plain_block
 from .rng import _normal
+from .stages import (
+    TWO_PI,
+    brake_current,
+    bus_fault,
+    current_loop,
+    current_violation,
+    encoder_counts,
+    encoder_pll,
+    integrator_step,
+    motor_bus_current,
+    overspeed,
+    torque_command,
+    torque_limit,
+    velocity_command,
+)
 from .vector import _run_block_vector, _vector_block
 
 
@@ -190,25 +204,289 @@ def _run_block_any(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABO
                        REC, rec_every, rec_offset, False)
 
 
+# ---------------------------------------------------------------------------------------
+# the reference tick's stages, per axis and per leg, in the firmware's order; the shared
+# arithmetic is in leglib.twin.stages (the vectorized path calls the same)
+# ---------------------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def _board_checks(b, C, AS, AI):
+    """main.cpp:413-420, axis.cpp:165-182: the axis checks and the watchdog, in every state.
+    An enabled watchdog counts down every tick, IDLE included, and at 0 sets its error
+    (kept while it is not fed); any axis error disarms the motor."""
+    for a in range(2):
+        if C[b, a, C_WD_ENABLE] > 0.0:
+            if AS[b, a, S_WD_TIMER] > 0.0:
+                AS[b, a, S_WD_TIMER] -= 1.0
+            else:
+                AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
+        if AI[b, a, I_AXIS_ERR] != 0:
+            AI[b, a, I_MODE] = MODE_IDLE
+
+
+@njit(cache=True, inline="always")
+def _encoder_tick(b, a, q, rng, dt, C, AS, AI, FR, DRV, turns_per_rad, inv_cpr):
+    """encoder.cpp: the reading of joint angle ``q`` (noise, the plant's reading error,
+    quantization) and the PLL; (rng, the rotor's turns from rest, pos_estimate,
+    vel_estimate)."""
+    j = _joint_of(a, DRV)
+    cpr = DRV[1]
+    turns = DRV[2] * (q - DRV[3 + j]) * turns_per_rad
+    rng, nz = _normal(rng)
+    raw = turns * cpr + DRV[6] * nz
+    if FR[b, F_ENC_ON] > 0.0:       # the encoder's reading error (plant [encoder_error])
+        raw += cpr * _encoder_error(FR, b, turns)
+    counts, counts_i = encoder_counts(raw, C[b, a, C_COUNT_OFFSET], DRV[9] > 0.0)
+    AI[b, a, I_COUNTS] = counts_i
+    AS[b, a, S_COUNT_F] = counts
+    kp = 2.0 * C[b, a, C_ENCODER_BW]
+    pe, ve = encoder_pll(AS[b, a, S_POS_EST], AS[b, a, S_VEL_EST], counts, dt, kp, 0.25 * kp * kp, inv_cpr)
+    AS[b, a, S_POS_EST] = pe
+    AS[b, a, S_VEL_EST] = ve
+    return rng, turns, pe, ve
+
+
+@njit(cache=True, inline="always")
+def _joint_of(a, DRV):
+    """The joint axis ``a`` drives (DRV[5]: the joint of axis 0)."""
+    j0 = int(DRV[5])
+    return j0 if a == 0 else 1 - j0
+
+
+@njit(cache=True, inline="always")
+def _calibration_tick(b, a, i, turns, rng, dt, C, AS, FB, DRV, inv_vbus):
+    """encoder.cpp:328-461, motor.cpp:416-463: an open-loop lock or scan at
+    calibration_current (the axis state machine of leglib.device.virtual.firmware moves
+    the electrical angle): the rotor follows it through a torque ~ sin(pole_pairs * error),
+    the current ramping to calibration_current at C_CAL_RAMP [A/s]. (rng, bus current)."""
+    AS[b, a, S_CAL_POS] += C[b, a, C_CAL_VEL] * dt
+    i_tgt = C[b, a, C_CAL_CURRENT]
+    step_i = C[b, a, C_CAL_RAMP] * dt
+    i_now = AS[b, a, S_CAL_I]
+    i_now = min(i_now + step_i, i_tgt) if i_now < i_tgt else max(i_now - step_i, i_tgt)
+    AS[b, a, S_CAL_I] = i_now
+    iq = i_now * math.sin(TWO_PI * DRV[10] * (AS[b, a, S_CAL_POS] - turns))
+    AS[b, a, S_IQ] = iq
+    rng, nz = _normal(rng)
+    AS[b, a, S_IQ_MEAS] = iq + DRV[7] * nz
+    AS[b, a, S_INTEGRATOR] = 0.0
+    FB[_at(R_TAU + _joint_of(a, DRV), i)] = DRV[2] * DRV[0] * DRV[8] * iq
+    w = AS[b, a, S_VEL_EST] * TWO_PI
+    ib = (1.5 * DRV[11] * i_now ** 2 + DRV[8] * iq * w) * inv_vbus
+    AS[b, a, S_IBUS_MOTOR] = ib
+    return rng, ib
+
+
+@njit(cache=True, inline="always")
+def _disarmed(b, a, i, AS, AI, FB, DRV):
+    """An IDLE axis: no current, the integrator cleared, no torque on its joint."""
+    AI[b, a, I_MODE] = MODE_IDLE
+    AS[b, a, S_IQ] = 0.0
+    AS[b, a, S_INTEGRATOR] = 0.0
+    AS[b, a, S_IQ_MEAS] = 0.0
+    AS[b, a, S_IBUS_MOTOR] = 0.0
+    FB[_at(R_TAU + _joint_of(a, DRV), i)] = 0.0
+
+
+@njit(cache=True, inline="always")
+def _input_setpoints(b, a, mode, dt, C, AS, AI):
+    """controller.cpp:183-283: the setpoints from the inputs by input_mode (PASSTHROUGH,
+    POS_FILTER, TRAP_TRAJ; INACTIVE keeps them); the end of a trajectory drops the axis
+    into position control (controller.cpp:255-262). Returns the control mode."""
+    imode = int(C[b, a, C_INPUT_MODE])
+    if imode == INPUT_MODE_PASSTHROUGH:
+        AS[b, a, S_POS_SP] = C[b, a, C_INPUT_POS]
+        AS[b, a, S_VEL_SP] = C[b, a, C_INPUT_VEL]
+        AS[b, a, S_TQ_SP] = C[b, a, C_INPUT_TORQUE]
+    elif imode == INPUT_MODE_POS_FILTER:
+        fki = 2.0 * min(C[b, a, C_FILTER_BW], 0.25 / dt)
+        fkp = 0.25 * fki * fki
+        acc = fkp * (C[b, a, C_INPUT_POS] - AS[b, a, S_POS_SP]) + fki * (C[b, a, C_INPUT_VEL] - AS[b, a, S_VEL_SP])
+        AS[b, a, S_TQ_SP] = 0.0  # acceleration times config.inertia (0 by default)
+        AS[b, a, S_VEL_SP] += dt * acc
+        AS[b, a, S_POS_SP] += dt * AS[b, a, S_VEL_SP]
+    elif imode == INPUT_MODE_TRAP_TRAJ and AI[b, a, I_TRAJ_DONE] == 0:
+        tt = AS[b, a, S_TT_T]
+        ta, tv, td = C[b, a, C_TT_TA], C[b, a, C_TT_TV], C[b, a, C_TT_TD]
+        if tt > ta + tv + td:
+            AI[b, a, I_TRAJ_DONE] = 1
+            AS[b, a, S_POS_SP] = C[b, a, C_TT_XF]
+            AS[b, a, S_VEL_SP] = 0.0
+            AS[b, a, S_TQ_SP] = 0.0
+            if mode != MODE_POSITION:
+                mode = MODE_POSITION
+                AI[b, a, I_MODE] = MODE_POSITION
+        else:
+            if tt < 0.0:
+                y, yd = C[b, a, C_TT_XI], C[b, a, C_TT_VI]
+            elif tt < ta:
+                y = C[b, a, C_TT_XI] + C[b, a, C_TT_VI] * tt + 0.5 * C[b, a, C_TT_AR] * tt * tt
+                yd = C[b, a, C_TT_VI] + C[b, a, C_TT_AR] * tt
+            elif tt < ta + tv:
+                y = C[b, a, C_TT_YACC] + C[b, a, C_TT_VR] * (tt - ta)
+                yd = C[b, a, C_TT_VR]
+            else:
+                tdd = tt - (ta + tv + td)
+                y = C[b, a, C_TT_XF] + 0.5 * C[b, a, C_TT_DR] * tdd * tdd
+                yd = C[b, a, C_TT_DR] * tdd
+            AS[b, a, S_POS_SP] = y
+            AS[b, a, S_VEL_SP] = yd
+            AS[b, a, S_TQ_SP] = 0.0
+            AS[b, a, S_TT_T] = tt + dt
+    return mode
+
+
+@njit(cache=True, inline="always")
+def _step_abort(b, a, mode, pe, C, AS):
+    """leglib's abort rule (:mod:`leglib.abort`) on an axis in position control during a
+    step (C_ABORT_ERROR > 0): the position error past the bound, or an oscillation that does
+    not decay. Returns the abort code (ABORT_NONE: go on)."""
+    if mode != MODE_POSITION or not C[b, a, C_ABORT_ERROR] > 0.0:
+        return ABORT_NONE
+    err = AS[b, a, S_POS_SP] - pe
+    if abs(err) > C[b, a, C_ABORT_ERROR]:
+        return ABORT_POSITION_ERROR
+    if _oscillation_update_at(AS, b, a, err, 0.025 * C[b, a, C_ABORT_ERROR]):
+        return ABORT_OSCILLATION
+    return ABORT_NONE
+
+
+@njit(cache=True, inline="always")
+def _controller_tick(k, b, a, mode, pe, ve, dt, C, AS, TT, tt_period):
+    """controller.cpp:286-420: the torque the controller asks for [N*m]: from the torque
+    table or setpoint in torque control (with the firmware's torque-mode velocity limiter),
+    else the cascade; limited to the current limit, and the velocity integrator's update."""
+    vel_limit = C[b, a, C_VEL_LIMIT]
+    vel_gain = C[b, a, C_VEL_GAIN]
+    t_lim = C[b, a, C_CURRENT_LIM] * C[b, a, C_KT]
+    if mode == MODE_TORQUE:
+        n_tab = TT.shape[1]
+        torque = TT[b, min(k // tt_period, n_tab - 1), a] if n_tab > 0 else AS[b, a, S_TQ_SP]
+        # enable_torque_mode_vel_limit (controller.cpp:137-141,388-394)
+        torque = min(max(torque, (-vel_limit - ve) * vel_gain), (vel_limit - ve) * vel_gain)
+        torque, limited = torque_limit(torque, t_lim)
+        if C[b, a, C_INT_RESET_TORQUE] > 0.0:   # the integrator is reset in torque control
+            AS[b, a, S_INTEGRATOR] = 0.0
+        return torque
+    vel_des = velocity_command(AS[b, a, S_POS_SP], pe, AS[b, a, S_VEL_SP], C[b, a, C_POS_GAIN], vel_limit,
+                               mode == MODE_POSITION)
+    verr = vel_des - ve
+    torque, limited = torque_limit(torque_command(vel_gain, verr, AS[b, a, S_INTEGRATOR], AS[b, a, S_TQ_SP]),
+                                   t_lim)
+    AS[b, a, S_INTEGRATOR] = integrator_step(AS[b, a, S_INTEGRATOR], limited, C[b, a, C_VEL_INT_GAIN], dt, verr,
+                                             C[b, a, C_VEL_INT_LIMIT])
+    return torque
+
+
+@njit(cache=True, inline="always")
+def _motor_tick(b, a, i, torque, ve, rng, C, AS, AI, FB, DRV, alpha, inv_kt, inv_vbus):
+    """motor.cpp: the current loop reaching the commanded torque's current, its measurement
+    (with noise) and the current-limit trip, the torque on the joint (the motor's true torque
+    constant) and the motor's bus current. (rng, bus current)."""
+    iq = current_loop(AS[b, a, S_IQ], alpha, torque, inv_kt)
+    AS[b, a, S_IQ] = iq
+    rng, nz = _normal(rng)
+    iq_meas = iq + DRV[7] * nz
+    AS[b, a, S_IQ_MEAS] = iq_meas
+    if current_violation(iq_meas, C[b, a, C_CURRENT_LIM]):
+        AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_CURRENT_LIMIT_VIOLATION
+        AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
+        AI[b, a, I_MODE] = MODE_IDLE
+        AS[b, a, S_IQ] = 0.0
+        iq = 0.0
+    # the motor's own torque constant makes the torque; the configured one only converts
+    # the torque command to a current
+    FB[_at(R_TAU + _joint_of(a, DRV), i)] = DRV[2] * DRV[0] * DRV[8] * iq
+    ib = motor_bus_current(DRV[11], iq, DRV[8], ve, inv_vbus)
+    AS[b, a, S_IBUS_MOTOR] = ib
+    return rng, ib
+
+
+@njit(cache=True, inline="always")
+def _axis_tick(k, b, a, i, q, rng, dt, C, AS, AI, FR, FB, DRV, TT, tt_period, turns_per_rad, inv_cpr, alpha,
+               inv_kt, inv_vbus):
+    """One control tick of axis ``a`` of leg ``b`` (Axis::run_control_loop): the encoder, then
+    calibration, IDLE, or the controller and the motor. (rng, bus current, abort code)."""
+    rng, turns, pe, ve = _encoder_tick(b, a, q, rng, dt, C, AS, AI, FR, DRV, turns_per_rad, inv_cpr)
+    mode = AI[b, a, I_MODE]
+    if mode == MODE_CALIB:
+        rng, ib = _calibration_tick(b, a, i, turns, rng, dt, C, AS, FB, DRV, inv_vbus)
+        return rng, ib, ABORT_NONE
+    if overspeed(mode != MODE_IDLE, ve, C[b, a, C_VEL_LIMIT], C[b, a, C_VEL_TOL]):
+        AI[b, a, I_CTRL_ERR] |= CONTROLLER_ERROR_OVERSPEED
+        AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_CONTROLLER_FAILED
+        mode = MODE_IDLE
+    if mode == MODE_IDLE:
+        _disarmed(b, a, i, AS, AI, FB, DRV)
+        return rng, 0.0, ABORT_NONE
+    mode = _input_setpoints(b, a, mode, dt, C, AS, AI)
+    code = _step_abort(b, a, mode, pe, C, AS)
+    torque = _controller_tick(k, b, a, mode, pe, ve, dt, C, AS, TT, tt_period)
+    rng, ib = _motor_tick(b, a, i, torque, ve, rng, C, AS, AI, FB, DRV, alpha, inv_kt, inv_vbus)
+    return rng, ib, code
+
+
+@njit(cache=True, inline="always")
+def _bus_tick(b, i, ibus_axes, C, AS, AI, FB, inv_vbus, inv_brake_r):
+    """low_level.cpp:322-376 and odrive_main's disarm: the brake resistor takes the
+    regenerated current; a bus current beyond the DC limits disarms both motors, with the
+    board's error (0.5.2+) or as a motor error (0.5.1, C_REGEN_ERR_STYLE)."""
+    ibus = ibus_axes
+    brake_i = 0.0
+    if C[b, 0, C_BRAKE_ON] > 0.0:
+        brake_i = brake_current(ibus, C[b, 0, C_MAX_REGEN], C[b, 0, C_BRAKE_R], inv_vbus, C[b, 0, C_VBUS],
+                                inv_brake_r)
+        ibus += brake_i
+    AS[b, 0, S_BRAKE_I] = brake_i
+    AS[b, 0, S_IBUS] = ibus
+    over_pos, over_neg = bus_fault(ibus, C[b, 0, C_DC_MAX_POS], C[b, 0, C_DC_MAX_NEG])
+    if not (over_pos or over_neg):
+        return
+    old_style = C[b, 0, C_REGEN_ERR_STYLE] > 0.0
+    for a in range(2):
+        if old_style:    # 0.5.1: low_level_fault on the motors
+            AI[b, a, I_MOTOR_ERR] |= (MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT if over_neg
+                                       else MOTOR_ERROR_DC_BUS_OVER_CURRENT)
+        else:            # 0.5.2+: odrv.disarm_with_error
+            AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_SYSTEM_LEVEL
+        AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
+        AI[b, a, I_MODE] = MODE_IDLE
+        AS[b, a, S_IQ] = 0.0
+        AS[b, a, S_INTEGRATOR] = 0.0
+    if not old_style:
+        AI[b, 0, I_SYS_ERR] |= (ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT if over_neg
+                                else ODRIVE_ERROR_DC_BUS_OVER_CURRENT)
+    FB[_at(R_TAU + 0, i)] = 0.0
+    FB[_at(R_TAU + 1, i)] = 0.0
+
+
+@njit(cache=True, inline="always")
+def _abort_step(k, b, i, code, AS, AI, FB, ABORT):
+    """leglib's abort: both axes IDLE, no current, the integrators cleared; the first abort's
+    tick and reason recorded."""
+    for a in range(2):
+        AI[b, a, I_MODE] = MODE_IDLE
+        AS[b, a, S_IQ] = 0.0
+        AS[b, a, S_INTEGRATOR] = 0.0
+    FB[_at(R_TAU + 0, i)] = 0.0
+    FB[_at(R_TAU + 1, i)] = 0.0
+    if ABORT[b, 1] == ABORT_NONE:
+        ABORT[b, 0] = k
+        ABORT[b, 1] = code
+
+
 @njit(cache=True)
 def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC,
                rec_every, rec_offset, plain):
-    """Legs b0..b1-1 of :func:`_run`, tick by tick: each tick the controller of every leg
-    (the firmware's loop), then the block's mechanics: one loop over the legs that
-    vectorizes when ``plain`` (they share a plain plant, :func:`_plain_block`), else leg by
-    leg. A leg's numbers do not depend on the block it is in."""
+    """Legs b0..b1-1 of :func:`_run`, tick by tick: each tick the firmware's loop for every
+    leg -- the board's checks, each axis's tick (:func:`_axis_tick`: encoder, controller,
+    motor), the DC bus, leglib's abort -- then the block's mechanics: one loop over the legs
+    that vectorizes when ``plain`` (they share a plain plant, :func:`_plain_block`), else
+    leg by leg. A leg's numbers do not depend on the block it is in."""
     nb = b1 - b0
-    N = DRV[0]
-    cpr = DRV[1]
-    dirn = DRV[2]
-    enc_noise = DRV[6]
-    cur_noise = DRV[7]
-    j_of_a0 = int(DRV[5])
-    n_tab = TT.shape[1]
     n_rec = REC.shape[1]
-    two_pi = 2.0 * math.pi
-    turns_per_rad = N / two_pi
-    inv_cpr = 1.0 / cpr
+    turns_per_rad = DRV[0] / TWO_PI
+    inv_cpr = 1.0 / DRV[1]
     # per-call invariants by leg (the host changes C only between calls): the current
     # loop's discrete pole, and reciprocals (a division in the tick loop is costly)
     ALPHA, INV_KT = np.empty((nb, 2)), np.empty((nb, 2))
@@ -244,246 +522,31 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
             if IB[_at(R_DEAD, i)] != 0:
                 continue
             b = b0 + i
-            # ---- record (before the tick, so row 0 is the initial state)
-            if 0 <= rec_row < n_rec:
+            if 0 <= rec_row < n_rec:   # recorded before the tick: row 0 is the initial state
                 REC[b, rec_row, 0] = FB[_at(R_Q + 4, i)] if plain else X[b, 4]
                 REC[b, rec_row, 1] = AS[b, 0, S_COUNT_F]
                 REC[b, rec_row, 2] = AS[b, 1, S_COUNT_F]
                 REC[b, rec_row, 3] = AS[b, 0, S_IQ_MEAS]
                 REC[b, rec_row, 4] = AS[b, 1, S_IQ_MEAS]
             rng = RNGL[i]
-            abort_now = False
+            _board_checks(b, C, AS, AI)
+            ibus_axes = 0.0
             abort_code = ABORT_NONE
-            # ---- the board's checks first (main.cpp:413-420): axis checks and the watchdog,
-            # in every state; a failed check disarms the motor
             for a in range(2):
-                if C[b, a, C_WD_ENABLE] > 0.0:
-                    # axis.cpp:171-182: counts down while enabled, IDLE included; at 0 the
-                    # error is set (and stays set while the watchdog is not fed)
-                    if AS[b, a, S_WD_TIMER] > 0.0:
-                        AS[b, a, S_WD_TIMER] -= 1.0
-                    else:
-                        AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_WATCHDOG_TIMER_EXPIRED
-                if AI[b, a, I_AXIS_ERR] != 0:
-                    AI[b, a, I_MODE] = MODE_IDLE
-            ibus_sum = 0.0
-            for a in range(2):
-                j = j_of_a0 if a == 0 else 1 - j_of_a0
+                j = _joint_of(a, DRV)
                 q = FB[_at(R_Q + 2 * j, i)] if plain else X[b, 2 * j]
                 if FR[b, F_BELT_K] > 0.0:       # compliant belt: the encoder is on the rotor
                     q = X[b, X_PHI1 + 2 * j]
-                turns = dirn * (q - DRV[3 + j]) * turns_per_rad
-                rng, nz = _normal(rng)
-                raw = turns * cpr + enc_noise * nz
-                if FR[b, F_ENC_ON] > 0.0:       # the encoder's reading error (plant [encoder_error])
-                    raw += cpr * _encoder_error(FR, b, turns)
-                off = C[b, a, C_COUNT_OFFSET]
-                counts = (math.floor(raw + 0.5) if DRV[9] > 0.0 else raw) + off
-                AI[b, a, I_COUNTS] = np.int64(math.floor(raw + 0.5) + off)
-                AS[b, a, S_COUNT_F] = counts
-                # PLL estimator (firmware: kp = 2 bw, ki = kp^2 / 4)
-                kp = 2.0 * C[b, a, C_ENCODER_BW]
-                ki = 0.25 * kp * kp
-                pe = AS[b, a, S_POS_EST] + dt * AS[b, a, S_VEL_EST]
-                delta = counts * inv_cpr - pe
-                pe += dt * kp * delta
-                ve = AS[b, a, S_VEL_EST] + dt * ki * delta
-                if abs(ve) < 0.5 * dt * ki * inv_cpr:
-                    ve = 0.0
-                AS[b, a, S_POS_EST] = pe
-                AS[b, a, S_VEL_EST] = ve
-                mode = AI[b, a, I_MODE]
-                if mode == MODE_CALIB:
-                    # open-loop lock/scan at calibration_current (encoder.cpp:328-461): the
-                    # rotor follows the electrical angle through a torque ~ sin(pole_pairs * error)
-                    AS[b, a, S_CAL_POS] += C[b, a, C_CAL_VEL] * dt
-                    # the current ramps towards calibration_current at C_CAL_RAMP [A/s]
-                    i_tgt = C[b, a, C_CAL_CURRENT]
-                    step_i = C[b, a, C_CAL_RAMP] * dt
-                    i_now = AS[b, a, S_CAL_I]
-                    i_now = min(i_now + step_i, i_tgt) if i_now < i_tgt else max(i_now - step_i, i_tgt)
-                    AS[b, a, S_CAL_I] = i_now
-                    pp = DRV[10]
-                    iq = i_now * math.sin(two_pi * pp * (AS[b, a, S_CAL_POS] - turns))
-                    AS[b, a, S_IQ] = iq
-                    rng, nz = _normal(rng)
-                    AS[b, a, S_IQ_MEAS] = iq + cur_noise * nz
-                    AS[b, a, S_INTEGRATOR] = 0.0
-                    FB[_at(R_TAU + j, i)] = dirn * N * DRV[8] * iq
-                    w = AS[b, a, S_VEL_EST] * two_pi
-                    ib = (1.5 * DRV[11] * i_now ** 2 + DRV[8] * iq * w) * INV_VBUS[i]
-                    AS[b, a, S_IBUS_MOTOR] = ib
-                    ibus_sum += ib
-                    continue
-                vel_limit = C[b, a, C_VEL_LIMIT]
-                if mode != MODE_IDLE and abs(ve) > vel_limit * C[b, a, C_VEL_TOL]:
-                    AI[b, a, I_CTRL_ERR] |= CONTROLLER_ERROR_OVERSPEED
-                    AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_CONTROLLER_FAILED
-                    mode = MODE_IDLE
-                if mode == MODE_IDLE:
-                    AI[b, a, I_MODE] = MODE_IDLE
-                    AS[b, a, S_IQ] = 0.0
-                    AS[b, a, S_INTEGRATOR] = 0.0
-                    AS[b, a, S_IQ_MEAS] = 0.0
-                    AS[b, a, S_IBUS_MOTOR] = 0.0
-                    FB[_at(R_TAU + j, i)] = 0.0
-                    continue
-                # ---- input modes (controller.cpp:183-283): setpoints from the inputs
-                imode = int(C[b, a, C_INPUT_MODE])
-                if imode == INPUT_MODE_PASSTHROUGH:
-                    AS[b, a, S_POS_SP] = C[b, a, C_INPUT_POS]
-                    AS[b, a, S_VEL_SP] = C[b, a, C_INPUT_VEL]
-                    AS[b, a, S_TQ_SP] = C[b, a, C_INPUT_TORQUE]
-                elif imode == INPUT_MODE_POS_FILTER:
-                    fki = 2.0 * min(C[b, a, C_FILTER_BW], 0.25 / dt)
-                    fkp = 0.25 * fki * fki
-                    acc = fkp * (C[b, a, C_INPUT_POS] - AS[b, a, S_POS_SP]) + fki * (C[b, a, C_INPUT_VEL] - AS[b, a, S_VEL_SP])
-                    AS[b, a, S_TQ_SP] = 0.0  # acceleration times config.inertia (0 by default)
-                    AS[b, a, S_VEL_SP] += dt * acc
-                    AS[b, a, S_POS_SP] += dt * AS[b, a, S_VEL_SP]
-                elif imode == INPUT_MODE_TRAP_TRAJ:
-                    if AI[b, a, I_TRAJ_DONE] == 0:
-                        tt = AS[b, a, S_TT_T]
-                        ta, tv, td = C[b, a, C_TT_TA], C[b, a, C_TT_TV], C[b, a, C_TT_TD]
-                        if tt > ta + tv + td:
-                            AI[b, a, I_TRAJ_DONE] = 1
-                            AS[b, a, S_POS_SP] = C[b, a, C_TT_XF]
-                            AS[b, a, S_VEL_SP] = 0.0
-                            AS[b, a, S_TQ_SP] = 0.0
-                            if mode != MODE_POSITION:
-                                mode = MODE_POSITION
-                                AI[b, a, I_MODE] = MODE_POSITION
-                        else:
-                            if tt < 0.0:
-                                y, yd = C[b, a, C_TT_XI], C[b, a, C_TT_VI]
-                            elif tt < ta:
-                                y = C[b, a, C_TT_XI] + C[b, a, C_TT_VI] * tt + 0.5 * C[b, a, C_TT_AR] * tt * tt
-                                yd = C[b, a, C_TT_VI] + C[b, a, C_TT_AR] * tt
-                            elif tt < ta + tv:
-                                y = C[b, a, C_TT_YACC] + C[b, a, C_TT_VR] * (tt - ta)
-                                yd = C[b, a, C_TT_VR]
-                            else:
-                                tdd = tt - (ta + tv + td)
-                                y = C[b, a, C_TT_XF] + 0.5 * C[b, a, C_TT_DR] * tdd * tdd
-                                yd = C[b, a, C_TT_DR] * tdd
-                            AS[b, a, S_POS_SP] = y
-                            AS[b, a, S_VEL_SP] = yd
-                            AS[b, a, S_TQ_SP] = 0.0
-                            AS[b, a, S_TT_T] = tt + dt
-                # INPUT_MODE_INACTIVE: the setpoints stay as they are
-                kt = C[b, a, C_KT]
-                vel_gain = C[b, a, C_VEL_GAIN]
-                t_lim = C[b, a, C_CURRENT_LIM] * kt
-                verr = 0.0
-                if mode == MODE_POSITION and C[b, a, C_ABORT_ERROR] > 0.0:
-                    err = AS[b, a, S_POS_SP] - pe
-                    if abs(err) > C[b, a, C_ABORT_ERROR]:
-                        abort_now = True
-                        abort_code = ABORT_POSITION_ERROR
-                    elif _oscillation_update_at(AS, b, a, err, 0.025 * C[b, a, C_ABORT_ERROR]):
-                        abort_now = True
-                        abort_code = ABORT_OSCILLATION
-                if mode == MODE_TORQUE:
-                    if n_tab > 0:
-                        row = min(k // tt_period, n_tab - 1)
-                        torque = TT[b, row, a]
-                    else:
-                        torque = AS[b, a, S_TQ_SP]
-                    # firmware's enable_torque_mode_vel_limit
-                    t_max = (vel_limit - ve) * vel_gain
-                    t_min = (-vel_limit - ve) * vel_gain
-                    torque = min(max(torque, t_min), t_max)
-                else:
-                    vel_sp = min(max(AS[b, a, S_VEL_SP], -vel_limit), vel_limit)
-                    if mode == MODE_POSITION:
-                        vel_des = C[b, a, C_POS_GAIN] * (AS[b, a, S_POS_SP] - pe) + vel_sp
-                    else:
-                        vel_des = vel_sp
-                    vel_des = min(max(vel_des, -vel_limit), vel_limit)
-                    verr = vel_des - ve
-                    torque = vel_gain * verr + AS[b, a, S_INTEGRATOR] + AS[b, a, S_TQ_SP]
-                limited = False
-                if torque > t_lim:
-                    torque = t_lim
-                    limited = True
-                elif torque < -t_lim:
-                    torque = -t_lim
-                    limited = True
-                # controller.cpp:408-420: the integrator is reset in torque control (where the
-                # firmware version does so), decays while limited, and is clamped
-                if mode == MODE_TORQUE:
-                    if C[b, a, C_INT_RESET_TORQUE] > 0.0:
-                        AS[b, a, S_INTEGRATOR] = 0.0
-                else:
-                    if limited:
-                        AS[b, a, S_INTEGRATOR] *= 0.99
-                    else:
-                        AS[b, a, S_INTEGRATOR] += C[b, a, C_VEL_INT_GAIN] * dt * verr
-                    lim = C[b, a, C_VEL_INT_LIMIT]
-                    AS[b, a, S_INTEGRATOR] = min(max(AS[b, a, S_INTEGRATOR], -lim), lim)
-                alpha = ALPHA[i, a]
-                iq = AS[b, a, S_IQ] + alpha * (torque * INV_KT[i, a] - AS[b, a, S_IQ])
-                AS[b, a, S_IQ] = iq
-                rng, nz = _normal(rng)
-                iq_meas = iq + cur_noise * nz
-                AS[b, a, S_IQ_MEAS] = iq_meas
-                if abs(iq_meas) > C[b, a, C_CURRENT_LIM] + CURRENT_LIM_MARGIN:
-                    AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_CURRENT_LIMIT_VIOLATION
-                    AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
-                    AI[b, a, I_MODE] = MODE_IDLE
-                    AS[b, a, S_IQ] = 0.0
-                    iq = 0.0
-                # the motor's own torque constant makes the torque; the configured one only
-                # converts the torque command to a current
-                FB[_at(R_TAU + j, i)] = dirn * N * DRV[8] * iq
-                # this motor's bus current: copper loss plus mechanical power over vbus
-                w = ve * two_pi
-                ib = (1.5 * DRV[11] * iq * iq + DRV[8] * iq * w) * INV_VBUS[i]
-                AS[b, a, S_IBUS_MOTOR] = ib
-                ibus_sum += ib
-            # ---- the DC bus (low_level.cpp:320-376): brake resistor, then the bus limits
-            brake_i = 0.0
-            if C[b, 0, C_BRAKE_ON] > 0.0:
-                brake_i = -ibus_sum - C[b, 0, C_MAX_REGEN]
-                duty = brake_i * C[b, 0, C_BRAKE_R] * INV_VBUS[i]
-                duty = min(max(duty, 0.0), 0.95)
-                brake_i = duty * C[b, 0, C_VBUS] * INV_BRAKE_R[i]
-                ibus_sum += brake_i
-            AS[b, 0, S_BRAKE_I] = brake_i
-            AS[b, 0, S_IBUS] = ibus_sum
-            bus_fault = 0
-            if ibus_sum > C[b, 0, C_DC_MAX_POS]:
-                bus_fault = 1
-            elif ibus_sum < C[b, 0, C_DC_MAX_NEG]:
-                bus_fault = 2
-            if bus_fault:
-                for a in range(2):
-                    if C[b, 0, C_REGEN_ERR_STYLE] > 0.0:   # 0.5.1: low_level_fault on the motors
-                        AI[b, a, I_MOTOR_ERR] |= (MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT if bus_fault == 2
-                                                   else MOTOR_ERROR_DC_BUS_OVER_CURRENT)
-                    else:                                  # 0.5.2+: odrv.disarm_with_error
-                        AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_SYSTEM_LEVEL
-                    AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
-                    AI[b, a, I_MODE] = MODE_IDLE
-                    AS[b, a, S_IQ] = 0.0
-                    AS[b, a, S_INTEGRATOR] = 0.0
-                if C[b, 0, C_REGEN_ERR_STYLE] <= 0.0:
-                    AI[b, 0, I_SYS_ERR] |= (ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT if bus_fault == 2
-                                            else ODRIVE_ERROR_DC_BUS_OVER_CURRENT)
-                FB[_at(R_TAU + 0, i)] = 0.0
-                FB[_at(R_TAU + 1, i)] = 0.0
-            if abort_now:
-                for a in range(2):
-                    AI[b, a, I_MODE] = MODE_IDLE
-                    AS[b, a, S_IQ] = 0.0
-                    AS[b, a, S_INTEGRATOR] = 0.0
-                FB[_at(R_TAU + 0, i)] = 0.0
-                FB[_at(R_TAU + 1, i)] = 0.0
-                if ABORT[b, 1] == ABORT_NONE:
-                    ABORT[b, 0] = k
-                    ABORT[b, 1] = abort_code
+                rng, ib, code = _axis_tick(k, b, a, i, q, rng, dt, C, AS, AI, FR, FB, DRV, TT, tt_period,
+                                           turns_per_rad, inv_cpr, ALPHA[i, a], INV_KT[i, a], INV_VBUS[i])
+                ibus_axes += ib
+                if code != ABORT_NONE:
+                    abort_code = code
+            _bus_tick(b, i, ibus_axes, C, AS, AI, FB, INV_VBUS[i], INV_BRAKE_R[i])
+            if abort_code != ABORT_NONE:
+                _abort_step(k, b, i, abort_code, AS, AI, FB, ABORT)
             RNGL[i] = rng
-        # ---- mechanics
+        # ---- mechanics (leglib.twin.mechanics)
         if plain:
             _mechanics_plain(dt, FB, IB, nb, P_plain, FR_plain)
             for i in range(nb):

@@ -23,7 +23,7 @@ from ..abort import (
     ABORT_POSITION_ERROR,
     _oscillation_step,
 )
-from ..kernelmath import py_max, py_min, select
+from ..kernelmath import select
 from .layout import (
     AXIS_ERROR_CONTROLLER_FAILED,
     AXIS_ERROR_MOTOR_FAILED,
@@ -40,7 +40,6 @@ from .layout import (
     C_VBUS,
     C_WD_ENABLE,
     CONTROLLER_ERROR_OVERSPEED,
-    CURRENT_LIM_MARGIN,
     F_ENC_ON,
     G_BRAKE_I,
     G_BRAKE_ON,
@@ -140,6 +139,20 @@ from .layout import (
 )
 from .mechanics import _at, _mechanics_plain
 from .rng import _normal
+from .stages import (
+    brake_current,
+    bus_fault,
+    current_loop,
+    current_violation,
+    encoder_counts,
+    encoder_pll,
+    integrator_step,
+    motor_bus_current,
+    overspeed,
+    torque_command,
+    torque_limit,
+    velocity_command,
+)
 
 
 @njit(cache=True)
@@ -171,25 +184,16 @@ def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, c
     turns = dirn * (q - q_rest) * turns_per_rad
     rng1, nz = _normal(rng)
     raw = turns * cpr + enc_noise * nz
-    off = FB[_at(rk + K_OFF, i)]
-    rounded = math.floor(raw + 0.5)
-    counts = select(quantize, rounded, raw) + off
-    kp = FB[_at(rk + K_KP, i)]
-    ki = FB[_at(rk + K_KI, i)]
+    counts, counts_i = encoder_counts(raw, FB[_at(rk + K_OFF, i)], quantize)
     pe0 = FB[_at(rv + V_PE, i)]
     ve0 = FB[_at(rv + V_VE, i)]
-    pe = pe0 + dt * ve0
-    delta = counts * inv_cpr - pe
-    pe += dt * kp * delta
-    ve = ve0 + dt * ki * delta
-    below = abs(ve) < 0.5 * dt * ki * inv_cpr
-    ve = select(below, 0.0, ve)
+    pe, ve = encoder_pll(pe0, ve0, counts, dt, FB[_at(rk + K_KP, i)], FB[_at(rk + K_KI, i)], inv_cpr)
     # the board's check, then overspeed
     mode0 = IB[_at(rw + W_MODE, i)]
     axis_err0 = IB[_at(rw + W_AXERR, i)]
     mode = select(axis_err0 != 0, MODE_IDLE, mode0)
     vel_limit = FB[_at(rk + K_VL, i)]
-    over = (mode != MODE_IDLE) & (abs(ve) > vel_limit * FB[_at(rk + K_VTOL, i)])
+    over = overspeed(mode != MODE_IDLE, ve, vel_limit, FB[_at(rk + K_VTOL, i)])
     ctrl_err = IB[_at(rw + W_CTRLERR, i)] | select(over, CONTROLLER_ERROR_OVERSPEED, 0)
     axis_err = axis_err0 | select(over, AXIS_ERROR_CONTROLLER_FAILED, 0)
     active = (mode != MODE_IDLE) & (not over)
@@ -211,31 +215,21 @@ def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, c
     n0, n1, n2, n3, n4, n5, unstable = _oscillation_step(o0, o1, o2, o3, o4, o5, err, 0.025 * abort_error)
     growing = osc_on & unstable
     code_a = select(too_far, ABORT_POSITION_ERROR, select(growing, ABORT_OSCILLATION, ABORT_NONE))
-    vel_sp = py_min(py_max(vel_in, -vel_limit), vel_limit)
-    vel_des = FB[_at(rk + K_PG, i)] * (pos_sp - pe) + vel_sp
-    vel_des = py_min(py_max(vel_des, -vel_limit), vel_limit)
+    vel_des = velocity_command(pos_sp, pe, vel_in, FB[_at(rk + K_PG, i)], vel_limit, True)
     verr = vel_des - ve
     integ0 = FB[_at(rv + V_INT, i)]
-    torque = vel_gain * verr + integ0 + tq_in
-    limited = (torque > t_lim) | (torque < -t_lim)
-    neg_t_lim = -t_lim
-    torque = select(torque > t_lim, t_lim, select(torque < neg_t_lim, neg_t_lim, torque))
-    decayed = integ0 * 0.99
-    grown = integ0 + FB[_at(rk + K_VIG, i)] * dt * verr
-    integ = select(limited, decayed, grown)
-    lim = FB[_at(rk + K_VIL, i)]
-    integ = py_min(py_max(integ, -lim), lim)
+    torque, limited = torque_limit(torque_command(vel_gain, verr, integ0, tq_in), t_lim)
+    integ = integrator_step(integ0, limited, FB[_at(rk + K_VIG, i)], dt, verr, FB[_at(rk + K_VIL, i)])
     iq0 = FB[_at(rv + V_IQ, i)]
-    iq = iq0 + FB[_at(rk + K_ALPHA, i)] * (torque * FB[_at(rk + K_INVKT, i)] - iq0)
+    iq = current_loop(iq0, FB[_at(rk + K_ALPHA, i)], torque, FB[_at(rk + K_INVKT, i)])
     rng2, nz = _normal(rng1)
     iq_meas = iq + cur_noise * nz
-    violated = active & (abs(iq_meas) > current_lim + CURRENT_LIM_MARGIN)
+    violated = active & current_violation(iq_meas, current_lim)
     motor_err = IB[_at(rw + W_MOTERR, i)] | select(violated, MOTOR_ERROR_CURRENT_LIMIT_VIOLATION, 0)
     axis_err = axis_err | select(violated, AXIS_ERROR_MOTOR_FAILED, 0)
     iq = select(violated, 0.0, iq)
     tau = dirn * N * kt_true * iq
-    w = ve * (2.0 * math.pi)
-    ib = (1.5 * r_phase * iq * iq + kt_true * iq * w) * inv_vbus
+    ib = motor_bus_current(r_phase, iq, kt_true, ve, inv_vbus)
     # write back: a dead leg keeps everything; an IDLE axis zeroes its outputs (the old
     # values loaded first: a select between two loaded values vectorizes, a load
     # under a condition does not)
@@ -252,7 +246,6 @@ def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, c
     FB[_at(rv + V_PE, i)] = select(alive, pe, pe0)
     FB[_at(rv + V_VE, i)] = select(alive, ve, ve0)
     FB[_at(rv + V_CNTF, i)] = select(alive, counts, cntf0)
-    counts_i = np.int64(rounded + off)
     IB[_at(rw + W_COUNTS, i)] = select(alive, counts_i, counts_i0)
     FB[_at(rv + V_INT, i)] = select(run, integ, select(idle, 0.0, integ0))
     FB[_at(rv + V_IQ, i)] = select(run, iq, select(idle, 0.0, iq0))
@@ -341,18 +334,15 @@ def _control_vector(k, dt, FB, IB, nb, DRV):
         tau_joint0, tau_joint1 = FB[_at(R_TAU, i)], FB[_at(R_TAU + 1, i)]
         # the DC bus: brake resistor, then the bus limits
         brake = FB[_at(R_G + G_BRAKE_ON, i)] > 0.0
-        brake_i = -ibus_sum - FB[_at(R_G + G_MAX_REGEN, i)]
-        duty = brake_i * FB[_at(R_G + G_BRAKE_R, i)] * inv_vbus
-        duty = py_min(py_max(duty, 0.0), 0.95)
-        braking = duty * FB[_at(R_G + G_VBUS, i)] * FB[_at(R_G + G_INV_BRAKE_R, i)]
+        braking = brake_current(ibus_sum, FB[_at(R_G + G_MAX_REGEN, i)], FB[_at(R_G + G_BRAKE_R, i)], inv_vbus,
+                                FB[_at(R_G + G_VBUS, i)], FB[_at(R_G + G_INV_BRAKE_R, i)])
         brake_i = select(brake, braking, 0.0)
         with_brake = ibus_sum + brake_i
         ibus_sum = select(brake, with_brake, ibus_sum)
         brake_i0, ibus0 = FB[_at(R_G + G_BRAKE_I, i)], FB[_at(R_G + G_IBUS, i)]
         FB[_at(R_G + G_BRAKE_I, i)] = select(alive, brake_i, brake_i0)
         FB[_at(R_G + G_IBUS, i)] = select(alive, ibus_sum, ibus0)
-        over_pos = ibus_sum > FB[_at(R_G + G_DCP, i)]
-        over_neg = (not over_pos) & (ibus_sum < FB[_at(R_G + G_DCN, i)])
+        over_pos, over_neg = bus_fault(ibus_sum, FB[_at(R_G + G_DCP, i)], FB[_at(R_G + G_DCN, i)])
         fault = alive & (over_pos | over_neg)
         old_style = FB[_at(R_G + G_STYLE, i)] > 0.0
         bus_flag = select(over_neg, MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT, MOTOR_ERROR_DC_BUS_OVER_CURRENT)

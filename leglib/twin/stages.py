@@ -1,0 +1,142 @@
+"""The stages of the firmware's control tick, shared by both of the twin's kernel paths.
+
+Each is a small compiled function, inlined where it is called, named after the firmware
+file whose code it follows (fw-v0.5.6 unless marked):
+
+- ``encoder.cpp``: :func:`encoder_counts` (the reading as the encoder keeps it) and
+  :func:`encoder_pll` (the position/velocity estimator);
+- ``controller.cpp``: :func:`overspeed`, :func:`velocity_command` (position P with the
+  velocity limit), :func:`torque_command`, :func:`torque_limit`, :func:`integrator_step`
+  (the velocity integrator's anti-windup);
+- ``motor.cpp``: :func:`current_loop` (the current controller as a first-order lag),
+  :func:`current_violation`, :func:`motor_bus_current`;
+- ``low_level.cpp``: :func:`brake_current`, :func:`bus_fault`.
+
+The reference tick (:func:`leglib.twin.kernel._run_block`) and the vectorized one
+(:mod:`leglib.twin.vector`) call the same stages with the same operands, so the two paths
+do the same operations in the same order and give the same numbers, bit for bit. The stages
+are written with selects, not branches, so that a loop over legs calling them vectorizes;
+on one leg a select costs what the branch did.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..kernelmath import py_max, py_min, select
+from .layout import CURRENT_LIM_MARGIN
+
+TWO_PI = 2.0 * math.pi
+
+
+# -- encoder.cpp ------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def encoder_counts(raw, offset, quantize):
+    """The encoder's reading of ``raw`` counts (noise and reading error included): (what the
+    estimator sees, the integer ``shadow_count``). Quantized to whole counts unless
+    ``quantize`` is False (exact positions, for models fitted by finite differences); the
+    count offset is the incremental count's reference at boot (encoder.cpp:480,657-662)."""
+    rounded = math.floor(raw + 0.5)
+    return select(quantize, rounded, raw) + offset, np.int64(rounded + offset)
+
+
+@njit(cache=True, inline="always")
+def encoder_pll(pe0, ve0, counts, dt, kp, ki, inv_cpr):
+    """One tick of the encoder's PLL (encoder.cpp:784-801; kp = 2 bw, ki = kp^2 / 4 from
+    encoder.config.bandwidth, encoder.cpp:121-122): (pos_estimate [turn], vel_estimate [turn/s]); a velocity
+    below half a count per tick's worth of ki is snapped to zero, as the firmware does."""
+    pe = pe0 + dt * ve0
+    delta = counts * inv_cpr - pe
+    pe += dt * kp * delta
+    ve = ve0 + dt * ki * delta
+    ve = select(abs(ve) < 0.5 * dt * ki * inv_cpr, 0.0, ve)
+    return pe, ve
+
+
+# -- controller.cpp ---------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def overspeed(armed, ve, vel_limit, tolerance):
+    """controller.cpp:331-341: |vel_estimate| above vel_limit * vel_limit_tolerance while
+    the controller runs (``armed``) is an OVERSPEED error."""
+    return armed & (abs(ve) > vel_limit * tolerance)
+
+
+@njit(cache=True, inline="always")
+def velocity_command(pos_sp, pe, vel_sp_in, pos_gain, vel_limit, position):
+    """controller.cpp:287,295-328: the velocity setpoint clamped to vel_limit, plus in position
+    control pos_gain times the position error, the sum clamped again [turn/s]."""
+    vel_sp = py_min(py_max(vel_sp_in, -vel_limit), vel_limit)
+    vel_des = select(position, pos_gain * (pos_sp - pe) + vel_sp, vel_sp)
+    return py_min(py_max(vel_des, -vel_limit), vel_limit)
+
+
+@njit(cache=True, inline="always")
+def torque_command(vel_gain, verr, integrator, torque_ff):
+    """controller.cpp:374-386: vel_gain times the velocity error, the integrator's torque
+    and the torque feed-forward [N*m]."""
+    return vel_gain * verr + integrator + torque_ff
+
+
+@njit(cache=True, inline="always")
+def torque_limit(torque, t_lim):
+    """controller.cpp:396-405: the torque clamped to +-t_lim (current_lim times the torque
+    constant); (the torque, whether it was limited)."""
+    neg_t_lim = -t_lim
+    limited = (torque > t_lim) | (torque < neg_t_lim)
+    return select(torque > t_lim, t_lim, select(torque < neg_t_lim, neg_t_lim, torque)), limited
+
+
+@njit(cache=True, inline="always")
+def integrator_step(integrator, limited, gain, dt, verr, lim):
+    """controller.cpp:407-420: the velocity integrator decays by 0.99 per tick while the
+    torque is limited (anti-windup) and grows by gain * dt * error otherwise, clamped to
+    +-vel_integrator_limit (0.5.4+; inf before)."""
+    integ = select(limited, integrator * 0.99, integrator + gain * dt * verr)
+    return py_min(py_max(integ, -lim), lim)
+
+
+# -- motor.cpp --------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def current_loop(iq0, alpha, torque, inv_kt):
+    """The current controller reaching its setpoint torque / torque_constant as a first-order
+    lag at current_control_bandwidth (``alpha`` = 1 - exp(-bw dt)) [A]."""
+    return iq0 + alpha * (torque * inv_kt - iq0)
+
+
+@njit(cache=True, inline="always")
+def current_violation(iq_measured, current_lim):
+    """motor.cpp:635-643: a measured current beyond current_lim + current_lim_margin."""
+    return abs(iq_measured) > current_lim + CURRENT_LIM_MARGIN
+
+
+@njit(cache=True, inline="always")
+def motor_bus_current(r_phase, iq, kt, ve, inv_vbus):
+    """The DC bus current a motor draws: copper loss plus mechanical power, over vbus [A]
+    (``ve`` the rotor's speed [turn/s], ``kt`` the motor's true torque constant)."""
+    w = ve * TWO_PI
+    return (1.5 * r_phase * iq * iq + kt * iq * w) * inv_vbus
+
+
+# -- low_level.cpp ----------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def brake_current(ibus_axes, max_regen, brake_r, inv_vbus, vbus, inv_brake_r):
+    """low_level.cpp:322-366: the brake resistor takes the regenerated current beyond
+    max_regen_current, its duty cycle clamped to [0, 0.95] [A]."""
+    duty = (-ibus_axes - max_regen) * brake_r * inv_vbus
+    duty = py_min(py_max(duty, 0.0), 0.95)
+    return duty * vbus * inv_brake_r
+
+
+@njit(cache=True, inline="always")
+def bus_fault(ibus, dc_max_positive, dc_max_negative):
+    """low_level.cpp:369-376: (over current, over regeneration) of the DC bus."""
+    over_pos = ibus > dc_max_positive
+    over_neg = (not over_pos) & (ibus < dc_max_negative)
+    return over_pos, over_neg
