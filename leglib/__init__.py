@@ -62,6 +62,7 @@ _API = {
     "tune": ("leglib.design.tuning", "tune"),
     "place_poles": ("leglib.design.statefeedback", "place_poles"),
     "simulate_closed_loop": ("leglib.design.statefeedback", "simulate_closed_loop"),
+    "validate": ("leglib.design.validation", "validate"),
     "save_design": ("leglib.design.saved", "save"),
     "load_design": ("leglib.design.saved", "load"),
     "Twin": ("leglib.twin.host", "Twin"),

@@ -13,7 +13,8 @@ from PIL import Image
 from . import model as M
 
 
-def _ax(ax):
+def axes(ax=None):
+    """``ax``, or new axes of a new figure when it is None (every helper here starts so)."""
     if ax is None:
         import matplotlib.pyplot as plt  # load time: matplotlib (about 0.5 s), only when drawing
         _, ax = plt.subplots()
@@ -22,7 +23,7 @@ def _ax(ax):
 
 def draw_leg(leg, q1, q2, ax=None, **style):
     """Draw the four links of the exact five-bar at (q1, q2) [rad]; returns the Line2D."""
-    ax = _ax(ax)
+    ax = axes(ax)
     phi3, phi4 = M.lower_link_angles(leg, q1, q2)
     p1 = leg.l1 * np.array([np.cos(q1), np.sin(q1)])
     p2 = leg.l2 * np.array([np.cos(q2), np.sin(q2)])
@@ -34,7 +35,7 @@ def draw_leg(leg, q1, q2, ax=None, **style):
 
 def plot_workspace(leg, ax=None, n: int = 45):
     """Foot positions over the working range, coloured by q2 - q1, with the leg at q0."""
-    ax = _ax(ax)
+    ax = axes(ax)
     q1, q2 = M.workspace_grid(leg, n=n)
     x, y = M.foot_position(leg, q1, q2)
     sc = ax.scatter(x, y, c=np.degrees(q2 - q1), s=4, cmap="viridis")
@@ -72,7 +73,7 @@ def plot_model_difference(cmp: dict, axes=None):
 
 def plot_states(t, states: dict, ax=None, deg: bool = True, idx=(0, 2), names=("q1", "q2")):
     """Overlay several (N, 4) state trajectories' joint angles; ``states`` maps label->x."""
-    ax = _ax(ax)
+    ax = axes(ax)
     lines = []
     scale = 180 / np.pi if deg else 1.0
     styles = ["-", "--", ":", "-."]
@@ -88,7 +89,7 @@ def plot_states(t, states: dict, ax=None, deg: bool = True, idx=(0, 2), names=("
 
 def plot_torque_run(run, ax=None):
     """Joint angles of a torque run (left axis) and the commanded torques (right axis)."""
-    ax = _ax(ax)
+    ax = axes(ax)
     l1 = ax.plot(run.t, np.degrees(run.q1), label="q1")
     l2 = ax.plot(run.t, np.degrees(run.q2), label="q2")
     ax.set_xlabel("t [s]")
@@ -105,7 +106,7 @@ def plot_torque_run(run, ax=None):
 
 def plot_measured_vs_simulated(t, measured, simulated: dict, ax=None, label="q2"):
     """A measured angle [rad] against simulated ones (dict label -> array) in degrees."""
-    ax = _ax(ax)
+    ax = axes(ax)
     lines = ax.plot(t, np.degrees(measured), "r-", lw=2, label=f"{label} experiment")
     for style, (name, sim) in zip(["b--", "g-.", "m:"], simulated.items()):
         lines += ax.plot(t, np.degrees(sim), style, label=f"{label} {name}")
@@ -117,7 +118,7 @@ def plot_measured_vs_simulated(t, measured, simulated: dict, ax=None, label="q2"
 
 def plot_step_identification(t, y, fit, ax=None):
     """A step response with its second-order fit."""
-    ax = _ax(ax)
+    ax = axes(ax)
     lines = ax.plot(t, y * 1e3, "r-", label="measured")
     lines += ax.plot(t, fit.response(t) * 1e3, "b--",
                      label=f"{fit.method}: zeta={fit.zeta:.3f}, fn={fit.fn:.2f} Hz, fd={fit.fd:.2f} Hz, "
@@ -132,7 +133,7 @@ def plot_step_identification(t, y, fit, ax=None):
 def plot_pole_map(d, ax=None):
     """Closed-loop and observer poles of a :class:`leglib.design.statefeedback.StateFeedback`, with the
     open-loop poles of its model."""
-    ax = _ax(ax)
+    ax = axes(ax)
     ol = np.linalg.eigvals(d.sys.A)
     arts = [ax.plot(ol.real, ol.imag, "kx", ms=9, label="open loop")[0],
             ax.plot(np.real(d.poles), np.imag(d.poles), "bo", label="controller")[0],
@@ -150,7 +151,7 @@ def plot_pole_map(d, ax=None):
 
 def plot_step_comparison(series: dict, target_deg: float, ax=None, joint: str = "q2"):
     """Joint-angle responses (dict label -> (t, q [rad])) against the setpoint."""
-    ax = _ax(ax)
+    ax = axes(ax)
     lines = []
     for style, (label, (t, q)) in zip(["r-", "b--", "g-.", "m:", "c-"], series.items()):
         lines += ax.plot(t, np.degrees(q), style, label=label)
@@ -166,7 +167,7 @@ def plot_gain_region(gm, ax=None, targets=None, marker=None, numbered: bool = Tr
     Fig. 6.12), measured grid points on top; optional targets ((M, 2) zeta, fn [Hz]),
     numbered 1..M in order (to match a table's rows) when ``numbered``, and a highlighted
     point ``marker`` (zeta, fn)."""
-    ax = _ax(ax)
+    ax = axes(ax)
     a = gm.achievable()
     arts = [ax.scatter(a.zeta, a.fn, s=2, c="0.75", label="achievable (interpolated between identified points)")]
     ok = gm.status == "ok"
@@ -220,7 +221,7 @@ def plot_thesis_peaks(t, reading, ax=None):
 
     ``reading`` is a :class:`leglib.identify.listing77.ThesisReading` of ``t``.
     """
-    ax = _ax(ax)
+    ax = axes(ax)
     label = (f"Listing 7.7: zeta = {reading.zeta:.3f}, 1/(t2 - t1) = {reading.fd:.2f} Hz"
              if not reading.flagged else f"Listing 7.7: {reading.n_peaks} peak(s), zeta set to {reading.zeta:g}")
     arts = ax.plot(t, reading.smoothed, "b-", lw=1.5, label="smooth(-y)")
@@ -242,7 +243,7 @@ def plot_readings_map(rows, measure: str = "thesis", ax=None, targets=None):
     Fig. 6.12 axes (0-1, 0-10 Hz); ``"true"``: the least-squares zeta against fn [Hz].
     ``targets``: dict label -> (zeta, f) drawn as crosses, in the same measure.
     """
-    ax = _ax(ax)
+    ax = axes(ax)
     ok = [r for r in rows if r["status"] == "ok" and (measure == "true" or not r["thesis_flagged"])]
     if measure == "thesis":
         x = np.array([r["thesis_zeta"] for r in ok])
@@ -436,7 +437,7 @@ def plot_design_path(design, ax=None):
     """The experiments of one :func:`leglib.design.tuning.tune` in the (zeta, fn) plane: each
     experiment's measured point, numbered, the model's prediction for it, and the target
     with its tolerance box."""
-    ax = _ax(ax)
+    ax = axes(ax)
     zt, ft = design.target
     tol = design.tolerance
     from matplotlib.patches import Rectangle  # load time: matplotlib, only when drawing
@@ -460,7 +461,7 @@ def plot_design_study(rows, ax=None, limits=(0.05, 0.10)):
     """|relative error| of zeta and fn of every design of
     :func:`leglib.evaluation.robustness.design_study`, grouped by plant and payload, with the median
     and worst limits as lines."""
-    ax = _ax(ax)
+    ax = axes(ax)
     groups = list(dict.fromkeys(f"{r.plant}\n{r.payload:g} kg" for r in rows))
     for i, g in enumerate(groups):
         rs = [r for r in rows if f"{r.plant}\n{r.payload:g} kg" == g]
@@ -472,5 +473,32 @@ def plot_design_study(rows, ax=None, limits=(0.05, 0.10)):
         ax.axhline(100 * lim, color="k", ls=style, lw=1, label=f"{name} {lim:.0%}")
     ax.set_xticks(range(len(groups)), groups, fontsize=8)
     ax.set_ylabel("|measured / target - 1| [%]")
+    ax.legend(fontsize=8)
+    return ax
+
+
+def plot_validation(validation, ax=None):
+    """|relative error| of zeta and fn per target of a :class:`leglib.design.validation.Validation`
+    (targets numbered as its table's rows); a check that is no second-order step is marked at
+    the top with a cross, a target outside the method's answers at the bottom."""
+    ax = axes(ax)
+    finite = [abs(x) for r in validation.rows if not r.outside and r.identified for x in r.error]
+    top = 100 * max(finite + [0.01]) * 1.3
+    marked = {"failed": False, "outside": False, "ok": False}
+    for k, r in enumerate(validation.rows, 1):
+        if r.outside:
+            ax.plot(k, 0.0, "v", color="gray", label=None if marked["outside"] else "outside the region")
+            marked["outside"] = True
+        elif not r.identified:
+            ax.plot(k, top, "x", color="tab:red", ms=9, label=None if marked["failed"] else "not identifiable")
+            marked["failed"] = True
+        else:
+            ax.plot(k - 0.1, 100 * abs(r.error[0]), "o", color="tab:blue", label=None if marked["ok"] else "zeta")
+            ax.plot(k + 0.1, 100 * abs(r.error[1]), "s", color="tab:orange", label=None if marked["ok"] else "fn")
+            marked["ok"] = True
+    ax.set_xticks(range(1, len(validation.rows) + 1))
+    ax.set_xlabel("target")
+    ax.set_ylabel("|measured / target - 1| [%]")
+    ax.set_title(f"{validation.method}: error per target")
     ax.legend(fontsize=8)
     return ax

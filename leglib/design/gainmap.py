@@ -38,6 +38,7 @@ from scipy.sparse.linalg import spsolve
 from scipy.spatial import cKDTree
 from tqdm.auto import tqdm
 
+from .. import plots
 from ..errors import MeasurementError, OutsideRegionError
 from ..experiments.step import StepResponse
 from ..files.sweepdir import read_measurements
@@ -178,6 +179,27 @@ class GainMap:
     @property
     def fn(self) -> np.ndarray:
         return self.wn / (2 * math.pi)
+
+    def _repr_markdown_(self) -> str:
+        c = self.counts()
+        lines = [f"**Gain map** over {' x '.join(str(len(a)) for a in self.axes)} gains "
+                 f"({', '.join(f'{k} {v}' for k, v in sorted(c.items()))})", "",
+                 "| gain | from | to | values |", "|---|---|---|---|"]
+        for name, a in zip(GAIN_NAMES, self.axes):
+            lines.append(f"| {name} | {a[0]:.4g} | {a[-1]:.4g} | {len(a)} |")
+        try:
+            ach = self.achievable()
+            if ach.zeta.size:
+                lines += ["", f"Achievable: ζ {ach.zeta.min():.3f} to {ach.zeta.max():.3f}, fn {ach.fn.min():.2f} "
+                              f"to {ach.fn.max():.2f} Hz ({ach.zeta.size} fine-grid points)."]
+        except ValueError as exc:   # too few identified points for a region
+            lines += ["", f"No achievable region: {exc}"]
+        return "\n".join(lines)
+
+    def plot(self, ax=None, targets=None):
+        """The achievable (zeta, fn) region, the measured points and ``targets``
+        (:func:`leglib.plots.plot_gain_region`)."""
+        return plots.plot_gain_region(self, ax=ax, targets=targets)
 
     def counts(self) -> dict:
         """{status: number of grid points} (plain ``str`` and ``int``)."""

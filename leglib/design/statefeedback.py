@@ -21,6 +21,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from .. import model as M
+from .. import plots
 from ..device.session import as_device
 from ..errors import PoleError
 from ..experiments.torque import torque_loop
@@ -120,6 +121,25 @@ class StateFeedback:
     @property
     def observable(self) -> bool:
         return self.observability_rank == self.sys.nstates
+
+    def _repr_markdown_(self) -> str:
+        fmt = (lambda z: f"{z.real:.4g}" if abs(z.imag) < 1e-12 else f"{z.real:.4g}{z.imag:+.4g}j")
+        rows = ["| | |", "|---|---|",
+                f"| poles [1/s] | {', '.join(fmt(complex(p)) for p in self.poles)} |",
+                f"| observer poles [1/s] | {', '.join(fmt(complex(p)) for p in self.observer_poles)} |"]
+        rows += [f"| K row {i + 1} [N·m/rad, N·m·s/rad] | {', '.join(f'{k:.4g}' for k in row)} |"
+                 for i, row in enumerate(np.asarray(self.K))]
+        rows += [f"| Nbar row {i + 1} [N·m/rad] | {', '.join(f'{k:.4g}' for k in row)} |"
+                 for i, row in enumerate(np.atleast_2d(self.Nbar))]
+        if self.Ki is not None:
+            rows += [f"| Ki row {i + 1} [N·m/(rad·s)] | {', '.join(f'{k:.4g}' for k in row)} |"
+                     for i, row in enumerate(np.asarray(self.Ki))]
+        return "**State feedback by pole placement**\n\n" + "\n".join(rows)
+
+    def plot(self, ax=None):
+        """The placed and observer poles and the model's open-loop poles
+        (:func:`leglib.plots.plot_pole_map`)."""
+        return plots.plot_pole_map(self, ax=ax)
 
     def closed_loop(self) -> control.StateSpace:
         """Linear closed loop with full state feedback, reference r (2) -> y (2):

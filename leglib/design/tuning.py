@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
+from .. import plots
 from ..device.session import as_device, check_gains
 from ..errors import IdentificationError
 from ..experiments.step import step_response
@@ -305,6 +306,20 @@ class Tuning:
                 f"± {self.uncertainty[0]:.3f} ({ez:+.1%}), fn {self.measured[1]:.2f} ± {self.uncertainty[1]:.2f} Hz "
                 f"({ef:+.1%})")
         return head + (f"\n{self.message}" if self.message else "")
+
+    def _repr_markdown_(self) -> str:
+        rows = ["| # | role | gains (pos, vel, vel_int) | predicted (ζ, fn [Hz]) | measured (ζ, fn [Hz]) |",
+                "|---|---|---|---|---|"]
+        for i, e in enumerate(self.experiments, 1):
+            meas = f"({e.measured[0]:.3f}, {e.measured[1]:.2f})" if e.ok else e.result.status
+            rows.append(f"| {i} | {e.role} | ({e.gains[0]:.3f}, {e.gains[1]:.4f}, {e.gains[2]:.4f}) | "
+                        f"({e.predicted[0]:.3f}, {e.predicted[1]:.2f}) | {meas} |")
+        return str(self).replace("\n", "\n\n") + "\n\n" + "\n".join(rows)
+
+    def plot(self, ax=None):
+        """Every experiment in the (zeta, fn) plane, the model's predictions and the target
+        (:func:`leglib.plots.plot_design_path`)."""
+        return plots.plot_design_path(self, ax=ax)
 
 
 def _check_target(zeta, fn, max_experiments, tolerance):

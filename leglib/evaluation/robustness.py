@@ -47,9 +47,10 @@ from ..design.gainmap import GainMap
 from ..design.plantfit import fit_leg_plant, fitting_gains, twin_step_responses
 from ..design.points import identify_response
 from ..design.tuning import tune
+from ..design.validation import Validation, validate
 from ..device.session import connect
 from ..device.setup import calibrate, configure
-from ..errors import ExperimentError, OutsideRegionError, ParameterError
+from ..errors import ExperimentError, ParameterError
 from ..experiments.step import _responses_from_batch, return_to_rest, step_response
 from ..experiments.sweep import thesis_grid
 from ..experiments.torque import friction_experiment, play_torque_table
@@ -110,26 +111,23 @@ def _measure(dev, gains):
     return (p.zeta, p.fn) if p.status == "ok" else (math.nan, math.nan)
 
 
-def _target_errors(dev, targets, gains_of):
-    """Errors (zeta and fn of every target) of gains chosen by ``gains_of(target)``, which
-    returns (gains, experiments spent, note) or raises OutsideRegionError."""
-    errs, detail, spent, notes = [], {}, 0, []
-    for k, tgt in enumerate(targets, 1):
-        try:
-            gains, n, note = gains_of(tgt)
-        except OutsideRegionError as exc:
-            detail[f"target {k}"] = {"target": tgt, "outside": True, "nearest": (exc.nearest.zeta, exc.nearest.fn)}
+def _score(v: Validation, seconds: float) -> Score:
+    """A :class:`Validation` as a table cell: its median and worst error (infinite for a
+    target that is not identifiable), experiments, each target's detail."""
+    s = v.summary()
+    detail, notes = {}, []
+    for k, r in enumerate(v.rows, 1):
+        if r.outside:
+            detail[f"target {k}"] = {"target": r.target, "outside": True, "nearest": r.nearest}
             notes.append(f"target {k} outside the region")
             continue
-        m = _measure(dev, gains)
-        spent += n + 1
-        e = (_rel(m[0], tgt[0]), _rel(m[1], tgt[1]))
-        errs.extend(e if np.all(np.isfinite(m)) else (math.inf, math.inf))
-        detail[f"target {k}"] = {"target": tgt, "gains": tuple(map(float, gains)), "measured": m, "error": e,
-                                 "experiments": n + 1, **({"note": note} if note else {})}
-        if not np.all(np.isfinite(m)):
+        m = (r.measured.zeta, r.measured.fn) if r.identified else (math.nan, math.nan)
+        detail[f"target {k}"] = {"target": r.target, "gains": r.gains, "measured": m, "error": r.error,
+                                 "experiments": r.experiments, **({"note": r.note} if r.note else {})}
+        if not r.identified:
             notes.append(f"target {k} not identifiable")
-    return errs, detail, spent, "; ".join(notes)
+    return Score(s["median"], s["worst"], experiments=s["experiments"], detail=detail, note="; ".join(notes),
+                 seconds=seconds)
 
 
 def evaluate(plant_name: str, payload: float = 0.0, seed: int = 70, quick: bool = False,
@@ -223,17 +221,19 @@ def evaluate(plant_name: str, payload: float = 0.0, seed: int = 70, quick: bool 
             grid = thesis_grid()
             batch = dev.sim.step_batch(grid, vel_limit=dev.config.step_vel_limit, abort_error_turns=0.8)
             gm = GainMap.from_responses(_responses_from_batch(dev, grid, batch, 0.4))
-            errs, detail, spent, note = _target_errors(dev, targets, lambda tg: (gm.gains_for(*tg), 0, ""))
-            out["map"] = Score(*_stats(errs), experiments=len(grid) + spent, detail=detail, note=note,
-                               seconds=time.perf_counter() - t0)
+            v = validate(dev, targets, lambda tg: (gm.gains_for(*tg), 0, None, ""), "map",
+                         setup_experiments=len(grid))
+            out["map"] = _score(v, time.perf_counter() - t0)
         if "model" in methods:
             t0 = time.perf_counter()
             say(f"{plant_name}: model-based inverse (fit_leg_plant)")
             fg = fitting_gains(5)
             model = fit_leg_plant([step_response(dev, *g) for g in fg], dev.config, load_plant("default"))
-            errs, detail, spent, note = _target_errors(dev, targets, lambda tg: (model.gains_for(*tg)[0], 0, ""))
-            out["model"] = Score(*_stats(errs), experiments=len(fg) + spent, detail=detail, note=note,
-                                 seconds=time.perf_counter() - t0)
+            def model_gains(tg):
+                gains, predicted = model.gains_for(*tg)
+                return gains, 0, predicted, ""
+            v = validate(dev, targets, model_gains, "model", setup_experiments=len(fg))
+            out["model"] = _score(v, time.perf_counter() - t0)
         if "design" in methods:
             t0 = time.perf_counter()
             say(f"{plant_name}: design")

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import plots
 from ..abort import N_OSC, oscillation_update
 from ..abort import REASONS as ABORT_REASONS
 from ..device.session import (
@@ -58,6 +59,18 @@ class StepResponse:
     completed: bool = True
     abort_reason: str | None = None
     meta: dict = field(default_factory=dict)
+
+    def plot(self, ax=None, fit=None):
+        """The foot height over time; with ``fit`` (a :class:`leglib.identify.step.SecondOrderFit`
+        of it) the fit too (:func:`leglib.plots.plot_step_identification`)."""
+        if fit is not None:
+            return plots.plot_step_identification(self.t, self.y, fit, ax=ax)
+        ax = plots.axes(ax)
+        ax.plot(self.t, self.y * 1e3, label="foot height" + ("" if self.completed else f" (aborted: {self.abort_reason})"))
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel("y [mm]")
+        ax.legend()
+        return ax
 
     def write(self, out_dir, when=None) -> Path:
         """Write as a measurement file (CSV + sidecar) in ``out_dir``."""

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import plots
 from ..device.session import (
     AXIS_STATE_CLOSED_LOOP_CONTROL,
     CONTROL_MODE_TORQUE,
@@ -53,6 +54,10 @@ class TorqueRun:
     period: float = 0.002
     t_cmd: np.ndarray | None = None   # (n, 2) when each joint's torque was written [s]
     t_read: np.ndarray | None = None  # (n, 2) when each joint's angle was read [s]
+
+    def plot(self, ax=None):
+        """The joint angles and the torques (:func:`leglib.plots.plot_torque_run`)."""
+        return plots.plot_torque_run(self, ax=ax)
 
     def applied_torque(self, t_grid, bandwidth: float | None = None) -> np.ndarray:
         """Joint torque (M, 2) [N*m] at ``t_grid`` as the motors produced it: each written

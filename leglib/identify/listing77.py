@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import plots
 from ..errors import IdentificationError
 
 
@@ -82,6 +83,17 @@ class ThesisReading:
         return self.n_peaks < 2
 
     overdamped = flagged
+
+    def plot(self, t, ax=None):
+        """Listing 7.7's view of the step at times ``t``: smooth(-y) with the peaks it found
+        (:func:`leglib.plots.plot_thesis_peaks`)."""
+        return plots.plot_thesis_peaks(np.asarray(t, float), self, ax=ax)
+
+    def _repr_markdown_(self) -> str:
+        how = "flagged: the listing's constant (fewer than two peaks)" if self.flagged else f"{self.n_peaks} peaks"
+        fd = f"{self.fd:.3f}" if self.n_peaks >= 2 else "–"
+        return ("| ζ (Listing 7.7) | 1/(t2 − t1) [Hz] | |\n|---|---|---|\n"
+                f"| {self.zeta:.4f} | {fd} | thesis measure, {how} |")
 
     @property
     def listing_output(self) -> tuple[float, float]:

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import find_peaks, savgol_filter
 
+from .. import plots
 from ..errors import IdentificationError
 from .fastfit import (
     C_DELAY,
@@ -93,6 +94,16 @@ class SecondOrderFit:
     @property
     def fd(self) -> float:
         return self.fn * math.sqrt(1 - self.zeta ** 2) if self.zeta < 1 else float("nan")
+
+    def _repr_markdown_(self) -> str:
+        kind = "overdamped (fewer than two peaks)" if self.overdamped else f"{self.n_peaks} peaks"
+        fd = f"{self.fd:.3f}" if self.zeta < 1 else "–"
+        return ("| ζ | ωn [rad/s] | fn [Hz] | fd [Hz] | R² | |\n|---|---|---|---|---|---|\n"
+                f"| {self.zeta:.4f} | {self.wn:.3f} | {self.fn:.3f} | {fd} | {self.r2:.4f} | {self.method}, {kind} |")
+
+    def plot(self, t, y, ax=None):
+        """The measured response ``y(t)`` with this fit (:func:`leglib.plots.plot_step_identification`)."""
+        return plots.plot_step_identification(np.asarray(t, float), np.asarray(y, float), self, ax=ax)
 
     def response(self, t) -> np.ndarray:
         """The model's step response at times ``t`` [s]."""

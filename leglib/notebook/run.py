@@ -9,12 +9,8 @@ widget view (:func:`add_widget_snapshots`).
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
-import datetime
-import logging
 import os
-import time
 import warnings
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
@@ -49,109 +45,6 @@ def _kernel_env(**env):
                 os.environ[k] = v
 
 
-ENGINE = "leglib"
-_ENGINE_REGISTERED = False
-# while a cell's reply is awaited, the kernel's shell queue is probed this often: a probe
-# answered before the cell's reply means the kernel finished the cell and its reply was
-# lost (a kernel answers shell requests in order, one at a time)
-PROBE_EVERY_S = 10.0
-# after a lost reply is detected, outputs still in flight get this long to arrive
-LOST_REPLY_GRACE_S = 5.0
-
-
-def _register_engine() -> None:
-    """Papermill's nbclient engine with one change (:data:`ENGINE`): a cell whose
-    ``execute_reply`` is lost is completed from what the kernel published for it (its
-    outputs; an error output fails the notebook as before), with a warning, instead of
-    waiting out the cell timeout.
-
-    Seen with ipykernel 6 under heavy load: the kernel idle and answering, the reply for
-    its last cell never received. While a reply is awaited, a ``kernel_info_request``
-    goes to the kernel's shell every :data:`PROBE_EVERY_S`; the kernel answers shell
-    requests in order, so a probe answered first means the cell is done and its reply
-    lost."""
-
-    from nbclient.util import ensure_async  # load time: nbclient, only when notebooks run
-    from papermill.clientwrap import (
-        PapermillNotebookClient,  # load time: papermill and the kernel machinery (about 2 s), only when notebooks run
-    )
-    from papermill.engines import (  # load time: papermill and the kernel machinery (about 2 s), only when notebooks run
-        NBClientEngine,
-        papermill_engines,
-    )
-    from papermill.utils import (  # load time: papermill and the kernel machinery (about 2 s), only when notebooks run
-        merge_kwargs,
-        remove_args,
-    )
-
-    global _ENGINE_REGISTERED
-    if _ENGINE_REGISTERED:
-        return
-
-    class Client(PapermillNotebookClient):
-        async def _async_poll_for_reply(self, msg_id, cell, timeout, task_poll_output_msg, task_poll_kernel_alive):
-            channel = self.kc.shell_channel
-            seen: set = set()   # parent ids of every shell message the reply loop receives
-            if not getattr(channel, "_leglib_spy", False):
-                receive = channel.get_msg
-
-                async def get_msg(*args, **kwargs):
-                    msg = await ensure_async(receive(*args, **kwargs))
-                    channel._leglib_seen.add(msg.get("parent_header", {}).get("msg_id"))
-                    return msg
-                channel.get_msg, channel._leglib_spy = get_msg, True
-            channel._leglib_seen = seen
-            wait_reply = asyncio.ensure_future(super()._async_poll_for_reply(
-                msg_id, cell, timeout, task_poll_output_msg, task_poll_kernel_alive))
-            probes, next_probe = [], time.monotonic() + PROBE_EVERY_S
-            while True:
-                done, _ = await asyncio.wait({wait_reply}, timeout=0.5)
-                if done:
-                    return wait_reply.result()
-                if not any(p in seen for p in probes):
-                    if time.monotonic() >= next_probe:
-                        probes.append(self.kc.kernel_info())
-                        next_probe = time.monotonic() + PROBE_EVERY_S
-                    continue
-                # the kernel answered a later request first: our reply is lost
-                if not task_poll_output_msg.done():
-                    try:   # outputs (and the idle status) still in flight
-                        await asyncio.wait_for(asyncio.shield(task_poll_output_msg), LOST_REPLY_GRACE_S)
-                    except Exception:  # noqa: BLE001 - the outputs' task failing is seen below
-                        pass
-                if wait_reply.done():
-                    return wait_reply.result()
-                wait_reply.cancel()
-                task_poll_output_msg.cancel()
-                task_poll_kernel_alive.cancel()
-                errors = [o for o in cell.get("outputs", []) if o.get("output_type") == "error"]
-                warnings.warn(f"cell {cell.get('execution_count')}: the kernel finished it but its reply was "
-                              f"lost; completed from its outputs", RuntimeWarning, stacklevel=1)
-                content = {"status": "error" if errors else "ok", "execution_count": cell.get("execution_count")}
-                if errors:
-                    content.update(ename=errors[-1].get("ename"), evalue=errors[-1].get("evalue"),
-                                   traceback=errors[-1].get("traceback", []))
-                return {"parent_header": {"msg_id": msg_id}, "content": content, "metadata": {},
-                        "header": {"msg_type": "execute_reply",
-                                   "date": datetime.datetime.now(datetime.timezone.utc)}}
-
-    class Engine(NBClientEngine):
-        @classmethod
-        def execute_managed_notebook(cls, nb_man, kernel_name, log_output=False, stdout_file=None,
-                                     stderr_file=None, start_timeout=60, execution_timeout=None, **kwargs):
-            # as NBClientEngine.execute_managed_notebook (papermill 2.7), with Client
-            kwargs = remove_args(["input_path"], **kwargs)
-            safe_kwargs = remove_args(["timeout", "startup_timeout"], **kwargs)
-            final_kwargs = merge_kwargs(safe_kwargs, timeout=execution_timeout or kwargs.get("timeout"),
-                                        startup_timeout=start_timeout, kernel_name=kernel_name,
-                                        log=logging.getLogger("papermill"), log_output=log_output,
-                                        stdout_file=stdout_file, stderr_file=stderr_file)
-            return Client(nb_man, **final_kwargs).execute()
-
-    papermill_engines.register(ENGINE, Engine)
-    _ENGINE_REGISTERED = True
-
-
 def execute(notebook: str | Path, out_dir: str | Path, parameters: dict | None = None,
             html: bool = True, progress: bool = False, timeout: int = 1200) -> Path:
     """Run one notebook with papermill from the repository root.
@@ -165,17 +58,32 @@ def execute(notebook: str | Path, out_dir: str | Path, parameters: dict | None =
         places under ``out_dir``
     html : also write the HTML beside the executed notebook
     progress : show papermill's progress bar
-    timeout : per-cell timeout [s]
+    timeout : per-cell timeout [s]: a cell that runs longer stops the run with nbclient's
+        ``CellTimeoutError``, which shows the cell.
 
     Returns
     -------
     Path of the executed notebook. Its figures are inline (the kernel uses matplotlib's
     inline backend whatever ``MPLBACKEND`` this process has), widget panels carry a static
-    picture. Raises papermill's ``PapermillExecutionError`` (naming the failing cell) when
-    a cell fails.
+    picture.
+
+    Raises
+    ------
+    papermill.PapermillExecutionError
+        A cell failed (the error names it).
+    nbclient.exceptions.CellTimeoutError, nbclient.exceptions.DeadKernelError
+        A cell ran past ``timeout``, or the kernel died, twice: on the twin such a run is
+        tried once more (a retry of a real leg's notebook would move it again: on
+        ``backend="usb"`` the first failure stands).
+
+    The notebooks run on papermill's own engine; nbclient's kernel client is given the
+    re-armed shell channel of :mod:`leglib.notebook.wakeup` (``kernel_manager_class``).
     """
     import nbformat  # load time: nbformat (about 1 s), only when notebooks run
     import papermill as pm  # load time: papermill and the kernel machinery (about 2 s), only when notebooks run
+    from nbclient.exceptions import CellTimeoutError, DeadKernelError  # load time: as papermill
+
+    from .wakeup import RearmingKernelManager  # load time: jupyter_client, only when notebooks run
 
     notebook = Path(notebook)
     out_dir = Path(out_dir).resolve()
@@ -184,11 +92,18 @@ def execute(notebook: str | Path, out_dir: str | Path, parameters: dict | None =
               "metrics_path": str(out_dir / "metrics" / f"{notebook.stem}.json")}
     params.update(parameters or {})
     out = out_dir / notebook.name
-    _register_engine()
-    with _kernel_env(MPLBACKEND=INLINE_BACKEND):
-        pm.execute_notebook(str(notebook), str(out), parameters=params, cwd=str(REPO),
-                            progress_bar=progress, kernel_name="python3", execution_timeout=timeout,
-                            engine_name=ENGINE)
+    for attempt in (1, 2):
+        try:
+            with _kernel_env(MPLBACKEND=INLINE_BACKEND):
+                pm.execute_notebook(str(notebook), str(out), parameters=params, cwd=str(REPO),
+                                    progress_bar=progress, kernel_name="python3", execution_timeout=timeout,
+                                    kernel_manager_class=RearmingKernelManager)
+            break
+        except (CellTimeoutError, DeadKernelError) as exc:
+            if attempt == 2 or params.get("backend") == "usb":
+                raise
+            warnings.warn(f"{notebook.name}: {type(exc).__name__}: {str(exc).splitlines()[0]}; running it "
+                          f"once more", RuntimeWarning, stacklevel=2)
     nb = nbformat.read(str(out), as_version=4)
     if add_widget_snapshots(nb):
         nbformat.write(nb, str(out))

@@ -1,24 +1,25 @@
-"""Small helpers that every notebook uses: parameter checks, metrics, figure output.
+"""What every notebook does first and last: the parameters check, metrics, figure output.
 
-Notebooks keep a ``parameters`` cell of plain typed values; the first cell after it calls
-:func:`require` (and :func:`require_seed`, :func:`require_order`,
-:func:`require_writable_dir`, :func:`require_writable_file`, :func:`require_readable_file`)
-for every parameter, before any experiment runs, so a bad value stops the notebook at once
-with a message that names the parameter.
+Notebooks keep a ``parameters`` cell of plain typed values (``seed: int = 11  # ...``); the
+first cell after it calls :func:`check_parameters` once, before any experiment runs, so a
+bad value stops the notebook at once with a message that names the parameter. The types
+come from the parameters cell's own annotations (papermill's injected values are checked
+against them); the call states only what types cannot say: ranges, choices, relations.
+:func:`require` and its siblings check one value, for what a notebook computes itself.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import os
+import re
 from pathlib import Path
 from typing import Any, Iterable
 
 import numpy as np
 
 from ..errors import NotebookParameterError
-from ..files.atomic import write_bytes_atomic
+from ..files.atomic import write_json_atomic
 from ..params import load_plant
 from .run import REPO
 
@@ -75,6 +76,84 @@ def require_order(low_name: str, low_value: float, high_name: str, high_value: f
                                      f"{high_name!r} ({high_value!r})")
 
 
+def check_parameters(ns: dict, *, ranges: dict | None = None, choices: dict | None = None,
+                     relations: Iterable = (), readable: Iterable = (), optional: Iterable = (),
+                     smoke: dict | None = None) -> None:
+    """Check every parameter of a notebook's parameters cell, in one call.
+
+    Each parameter's type is its annotation in the parameters cell (``float`` also accepts an
+    int, no number accepts a bool); then by name: ``seed`` and ``*_seed`` are seeds
+    (0 .. 2**32 - 1), ``*_dir`` a writable (or creatable) directory, ``*_path`` a writable
+    file, ``*_file`` an existing readable file or ``""`` (none); each name in ``readable`` an
+    existing readable file and each in ``optional`` a path that may not exist yet. Then the
+    ranges and choices, then ``smoke``'s shortened values (when the ``smoke`` parameter is
+    True), then the relations, which see the shortened values.
+
+    Parameters
+    ----------
+    ns : dict
+        The notebook's namespace, ``globals()``: its ``__annotations__`` are the parameters.
+    ranges : dict, optional
+        ``{name: (low, high)}``, inclusive; either bound may be None.
+    choices : dict, optional
+        ``{name: allowed values}``.
+    relations : iterable of str
+        Expressions over the parameters that must hold, e.g. ``"pos_min < pos_max"`` or
+        ``"fit_start <= duration - 1"``.
+    readable, optional : iterable of str
+        Parameters naming input files that must exist, and paths that may be missing.
+    smoke : dict, optional
+        ``{name: value or callable(value)}`` applied in ``ns`` when ``ns["smoke"]`` is True
+        (a short run), before the relations are checked.
+
+    Raises
+    ------
+    NotebookParameterError
+        The first parameter that is of the wrong type, out of range, not one of its choices,
+        breaks a relation, or is a path that cannot be used; the message names it.
+    """
+    annotations = ns.get("__annotations__") or {}
+    if not annotations:
+        raise NotebookParameterError("the notebook's parameters cell has no annotated parameters "
+                                     "(write them as 'name: type = value  # unit, meaning')")
+    ranges, choices, readable, optional = dict(ranges or {}), dict(choices or {}), set(readable), set(optional)
+    relations = list(relations)
+    named = set(ranges) | set(choices) | readable | optional | set(smoke or {})
+    for expr in relations:
+        named |= {n for n in re.findall(r"[A-Za-z_]\w*", expr) if n not in ("and", "or", "not", "abs")}
+    for name in sorted(named - set(annotations)):
+        raise NotebookParameterError(f"check_parameters names {name!r}, which is no parameter of this notebook "
+                                     f"(its parameters cell has {sorted(annotations)})")
+    for name, kind in annotations.items():
+        value = ns[name]
+        low, high = ranges.get(name, (None, None))
+        if name in readable:
+            require_readable_file(name, value)
+        elif name in optional:
+            require(name, value, str)
+        elif name == "seed" or name.endswith("_seed"):
+            require_seed(name, value)
+        elif name.endswith("_dir"):
+            require_writable_dir(name, value)
+        elif name.endswith("_path"):
+            require_writable_file(name, value)
+        elif name.endswith("_file"):
+            require(name, value, str)
+            if value:
+                require_readable_file(name, value)
+        else:
+            require(name, value, kind, choices=choices.get(name), low=low, high=high)
+    if smoke and ns.get("smoke"):
+        for name, new in smoke.items():
+            ns[name] = new(ns[name]) if callable(new) else new
+    values = {name: ns[name] for name in annotations}
+    for expr in relations:
+        if not eval(expr, {"__builtins__": {"abs": abs}}, dict(values)):  # noqa: S307 - the notebook's own expressions
+            used = {n: values[n] for n in re.findall(r"[A-Za-z_]\w*", expr) if n in values}
+            raise NotebookParameterError(f"parameters {', '.join(f'{k} = {v!r}' for k, v in used.items())}: "
+                                         f"need {expr}")
+
+
 def _nearest_existing(path: Path) -> Path:
     p = path
     while not os.path.lexists(p) and p != p.parent:
@@ -122,32 +201,6 @@ def require_readable_file(name: str, value: Any) -> Path:
     if not os.access(path, os.R_OK):
         raise NotebookParameterError(f"parameter {name!r}: {value} is not readable")
     return path
-
-
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, (np.floating, float)):
-        v = float(obj)
-        return v if math.isfinite(v) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, complex):
-        return [obj.real, obj.imag]
-    return obj
-
-
-def write_json_atomic(path: str | Path, data: dict) -> Path:
-    """Write ``data`` as JSON via a temporary file and rename (never a half-written file;
-    created with the user's umask)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(_jsonable(data), indent=2, sort_keys=True) + "\n"
-    return write_bytes_atomic(path, text.encode(), overwrite=True)
 
 
 def write_metrics(path: str | Path, **metrics) -> Path:

@@ -253,50 +253,6 @@ def _notebook_with_cells(path, cells):
     return path
 
 
-# a cell that makes the kernel drop its own execute_reply (and, with "status", its idle
-# status on IOPub too): the kernel finishes the cell, the client never hears of it
-def _drop_reply(what=("execute_reply",)):
-    return (
-        "_k = get_ipython().kernel\n_send = _k.session.send\n"
-        f"_what = {tuple(what)!r}\n"
-        "def _drop_once(stream, msg, *a, **kw):\n"
-        "    kind = msg if isinstance(msg, str) else msg.get('header', {}).get('msg_type')\n"
-        "    content = a[0] if a and isinstance(a[0], dict) else kw.get('content') or {}\n"
-        "    if kind == 'status' and content.get('execution_state') != 'idle':\n"
-        "        return _send(stream, msg, *a, **kw)\n"
-        "    if kind in _what and kind not in _k.__dict__.setdefault('_dropped', set()):\n"
-        "        _k._dropped.add(kind)\n        return None\n"
-        "    return _send(stream, msg, *a, **kw)\n"
-        "_k.session.send = _drop_once\n")
-
-
-_DROP_REPLY = _drop_reply()
-
-
-def test_a_lost_reply_completes_the_cell_from_its_outputs(tmp_path, monkeypatch):
-    """The kernel finished a cell but its reply is lost: a probe of the kernel's shell is
-    answered first, so execute completes the cell from its outputs, with a warning, and
-    runs on."""
-    monkeypatch.setattr(notebooks, "PROBE_EVERY_S", 1.0)
-    path = _notebook_with_cells(tmp_path / "lost.ipynb", [_DROP_REPLY + "print('first')", "print('second')"])
-    with pytest.warns(RuntimeWarning, match="its reply was lost"):
-        out = execute(path, tmp_path / "out", parameters={}, html=False, timeout=120)
-    nb = nbformat.read(str(out), as_version=4)
-    texts = ["".join(o.get("text", "")) for c in nb.cells for o in c.outputs]
-    assert texts == ["first\n", "second\n"]
-
-
-def test_a_lost_reply_of_a_failing_cell_still_fails(tmp_path, monkeypatch):
-    from papermill.exceptions import PapermillExecutionError
-
-    monkeypatch.setattr(notebooks, "PROBE_EVERY_S", 1.0)
-    path = _notebook_with_cells(tmp_path / "lost_err.ipynb",
-                                [_DROP_REPLY + "raise KeyError('boom')", "print('not reached')"])
-    with pytest.warns(RuntimeWarning, match="its reply was lost"), \
-            pytest.raises(PapermillExecutionError, match="boom"):
-        execute(path, tmp_path / "out", parameters={}, html=False, timeout=120)
-
-
 def _fake_execute(notebook, out_dir, parameters):
     """Stands in for notebooks.execute in run_all's pool: records when it ran."""
     import time as _time
@@ -346,17 +302,11 @@ def test_run_all_skips_what_reads_from_a_failed_notebook(tmp_path, monkeypatch):
     assert any("not run" in n and "03_c.ipynb" in n for n in err.value.__notes__)
 
 
-def test_a_lost_reply_and_idle_status_are_detected_by_the_probe(tmp_path, monkeypatch):
-    """Reply and IOPub idle both lost: the probe still tells a finished cell from a
-    running one (the second cell runs 3 s, longer than the probe period, undisturbed)."""
-    monkeypatch.setattr(notebooks, "PROBE_EVERY_S", 1.0)
-    monkeypatch.setattr(notebooks, "LOST_REPLY_GRACE_S", 1.0)
-    path = _notebook_with_cells(tmp_path / "lost_idle.ipynb", [
-        _drop_reply(("execute_reply", "status")) + "print('first')",
-        "import time\ntime.sleep(3)\nprint('second')", "print('third')"])
-    with pytest.warns(RuntimeWarning, match="its reply was lost") as record:
-        out = execute(path, tmp_path / "out", parameters={}, html=False, timeout=120)
-    assert len([w for w in record if "reply was lost" in str(w.message)]) == 1
-    nb = nbformat.read(str(out), as_version=4)
-    texts = ["".join(o.get("text", "")) for c in nb.cells for o in c.outputs]
-    assert texts == ["first\n", "second\n", "third\n"]
+def test_a_cell_past_the_timeout_names_the_cell_and_is_tried_once_more(tmp_path):
+    """A cell that runs longer than execute's timeout stops the run with nbclient's
+    CellTimeoutError, which shows the cell; on the twin the run is tried once more."""
+    from nbclient.exceptions import CellTimeoutError
+    path = _notebook_with_cells(tmp_path / "slow.ipynb", ["import time\ntime.sleep(30)  # the slow cell"])
+    with pytest.warns(RuntimeWarning, match="running it once more"), pytest.raises(CellTimeoutError) as err:
+        execute(path, tmp_path / "out", timeout=2, html=False)
+    assert "the slow cell" in str(err.value)

@@ -1,0 +1,173 @@
+"""Validation (thesis 6.5): a method chooses gains for target (zeta, fn); a step at those
+gains on the leg, identified; the relative errors. One routine for every consumer (notebook
+05, :mod:`leglib.evaluation.robustness`, ``python -m leglib robustness``), with one convention:
+
+- a target the method has no answer for (outside a gain map's achievable region) is
+  *outside*: it has no error and is counted apart, its nearest achievable point noted;
+- a step that is not a second-order step (the one classifier,
+  :func:`leglib.design.points.identify_response`, says ``failed`` or ``unstable``) is *not
+  identifiable*: its error is infinite, so a method's worst error says so, and it is
+  counted; it is never dropped, never given numbers.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import plots
+from ..errors import OutsideRegionError
+from ..experiments.step import step_response
+from .points import STATUS_OK, identify_response
+
+
+@dataclass
+class TargetResult:
+    """One target of a :class:`Validation`.
+
+    Attributes
+    ----------
+    target : (zeta, fn [Hz])
+    gains : (pos_gain, vel_gain, vel_integrator_gain) the method chose; None when outside
+    predicted : the method's own (zeta, fn [Hz]) for its gains, or None
+    measured : :class:`leglib.design.points.PointResult` of the check step, or None
+    experiments : steps this target cost (the method's own plus the check)
+    outside : the method had no answer (``nearest``: the nearest achievable (zeta, fn))
+    note : what the method said
+    """
+
+    target: tuple
+    gains: tuple | None = None
+    predicted: tuple | None = None
+    measured: object = None
+    experiments: int = 0
+    outside: bool = False
+    nearest: tuple | None = None
+    note: str = ""
+
+    @property
+    def identified(self) -> bool:
+        return self.measured is not None and self.measured.status == STATUS_OK
+
+    @property
+    def error(self) -> tuple[float, float]:
+        """Relative errors (zeta, fn) of the check against the target: NaN outside the
+        method's answers, infinite when the check is not a second-order step."""
+        if self.outside or self.measured is None:
+            return (math.nan, math.nan)
+        if not self.identified:
+            return (math.inf, math.inf)
+        return (self.measured.zeta / self.target[0] - 1.0, self.measured.fn / self.target[1] - 1.0)
+
+
+@dataclass
+class Validation:
+    """A method's validation over targets: :func:`validate`'s result.
+
+    Attributes
+    ----------
+    method : str
+    rows : list of :class:`TargetResult`, one per target
+    setup_experiments : steps spent before any target (a sweep for the map, the fitting steps
+        of a model)
+    """
+
+    method: str
+    rows: list = field(default_factory=list)
+    setup_experiments: int = 0
+
+    @property
+    def errors(self) -> np.ndarray:
+        """(K, 2) relative errors (zeta, fn) of the targets the method answered (inf for a
+        check that is not a second-order step)."""
+        e = [r.error for r in self.rows if not r.outside]
+        return np.array(e, dtype=float).reshape(-1, 2)
+
+    @property
+    def experiments(self) -> int:
+        return self.setup_experiments + sum(r.experiments for r in self.rows)
+
+    def summary(self) -> dict:
+        """Median and worst absolute relative errors (of zeta, of fn, of both), the targets
+        answered, outside and not identifiable, the experiments."""
+        e = np.abs(self.errors)
+        stat = (lambda f, x: float(f(x)) if x.size else math.nan)
+        return {"median_zeta": stat(np.median, e[:, 0]), "median_fn": stat(np.median, e[:, 1]),
+                "worst_zeta": stat(np.max, e[:, 0]), "worst_fn": stat(np.max, e[:, 1]),
+                "median": stat(np.median, e), "worst": stat(np.max, e),
+                "targets": len(e), "outside_region": sum(r.outside for r in self.rows),
+                "unidentified": sum((not r.outside) and not r.identified for r in self.rows),
+                "experiments": self.experiments}
+
+    def markdown(self) -> str:
+        """The table of targets and the summary, as Markdown."""
+        lines = [f"**{self.method}**", "", "| # | target (ζ, fn [Hz]) | predicted | measured | error ζ, fn | steps |",
+                 "|---|---|---|---|---|---|"]
+        for k, r in enumerate(self.rows, 1):
+            tgt = f"({r.target[0]:.3f}, {r.target[1]:.2f})"
+            pred = f"({r.predicted[0]:.3f}, {r.predicted[1]:.2f})" if r.predicted else "–"
+            if r.outside:
+                near = f" (nearest {r.nearest[0]:.3f}, {r.nearest[1]:.2f} Hz)" if r.nearest else ""
+                lines.append(f"| {k} | {tgt} | outside the region{near} | – | – | {r.experiments} |")
+                continue
+            if r.identified:
+                meas = f"({r.measured.zeta:.3f}, {r.measured.fn:.2f})"
+                err = f"{r.error[0]:+.1%}, {r.error[1]:+.1%}"
+            else:
+                meas = f"not identifiable: {r.measured.reason or r.measured.status}"
+                err = "∞"
+            lines.append(f"| {k} | {tgt} | {pred} | {meas} | {err} | {r.experiments} |")
+        s = self.summary()
+        lines += ["", f"Median error {s['median']:.1%}, worst {s['worst']:.1%} over {s['targets']} targets "
+                      f"({s['unidentified']} not identifiable, {s['outside_region']} outside the region); "
+                      f"{s['experiments']} experiments."]
+        return "\n".join(lines)
+
+    def _repr_markdown_(self) -> str:
+        return self.markdown()
+
+    def plot(self, ax=None):
+        """The errors per target (zeta and fn), a failed check marked (:func:`leglib.plots.plot_validation`)."""
+        return plots.plot_validation(self, ax=ax)
+
+
+def validate(odrv, targets, gains_of, method: str, setup_experiments: int = 0, step_kwargs=None) -> Validation:
+    """Validate a method on the leg: for each target the method's gains, one step, its
+    classification.
+
+    Parameters
+    ----------
+    odrv : Device or an ODrive object (calibrated)
+    targets : sequence of (zeta, fn [Hz])
+    gains_of : callable
+        ``gains_of((zeta, fn)) -> (gains, experiments, predicted, note)``: the method's gains
+        for a target, the steps it spent on them (0 for a lookup), its own prediction
+        ((zeta, fn) or None) and a note; it raises :class:`leglib.errors.OutsideRegionError`
+        when it has no answer.
+    method : str
+        The method's name, for the table.
+    setup_experiments : int
+        Steps the method spent before any target.
+    step_kwargs : dict, optional
+        Passed to :func:`leglib.experiments.step.step_response` for the check steps.
+
+    Returns
+    -------
+    Validation
+    """
+    result = Validation(method, setup_experiments=int(setup_experiments))
+    for tgt in targets:
+        tgt = (float(tgt[0]), float(tgt[1]))
+        try:
+            gains, spent, predicted, note = gains_of(tgt)
+        except OutsideRegionError as exc:
+            result.rows.append(TargetResult(tgt, outside=True, nearest=(exc.nearest.zeta, exc.nearest.fn),
+                                            note="outside the region"))
+            continue
+        point = identify_response(step_response(odrv, *gains, **(step_kwargs or {})))
+        result.rows.append(TargetResult(tgt, tuple(float(g) for g in gains),
+                                        None if predicted is None else tuple(map(float, predicted)), point,
+                                        int(spent) + 1, note=note))
+    return result
