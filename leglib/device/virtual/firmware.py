@@ -766,11 +766,13 @@ class VirtualODrive:
             "pre_calibrated": _Prop(lambda: ax["motor_pre_calibrated"], set_motor_pre_calibrated, bool),
             "phase_resistance": _Prop(lambda: self.twin.motor.phase_resistance if ax["motor_calibrated"] else 0.0),
         }
-        motor = _Node(dev, path + ".motor", {
+        motor_props = {
             "error": err_prop(L.I_MOTOR_ERR),
             "is_calibrated": _Prop(lambda: ax["motor_calibrated"], None, bool),
-            "is_armed": _Prop(lambda: bool(st.AI[0, a, L.I_MODE] != L.MODE_IDLE), None, bool),
-        }, {"config": _Node(dev, path + ".motor.config", mcfg_props),
+        }
+        if v056:   # 0.5.2+; fw-v0.5.1 has motor.armed_state instead (odrive-interface.yaml:517)
+            motor_props["is_armed"] = _Prop(lambda: bool(st.AI[0, a, L.I_MODE] != L.MODE_IDLE), None, bool)
+        motor = _Node(dev, path + ".motor", motor_props, {"config": _Node(dev, path + ".motor.config", mcfg_props),
             "current_control": _Node(dev, path + ".motor.current_control", {
                 "Iq_measured": _Prop(lambda: float(st.AS[0, a, L.S_IQ_MEAS])),
                 "Iq_setpoint": _Prop(lambda: float(st.AS[0, a, L.S_IQ]))})})
