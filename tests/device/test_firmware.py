@@ -330,6 +330,15 @@ def test_any_axis_error_disarms_and_idles(odrv):
     assert odrv.axis0.current_state == V.AXIS_STATE_IDLE and not odrv.axis0.motor.is_armed
 
 
+def test_firmware_051_has_no_motor_is_armed():
+    """motor.is_armed came with 0.5.2 (fw-v0.5.2 odrive-interface.yaml:708); fw-v0.5.1 has
+    motor.armed_state instead (its odrive-interface.yaml:517), not modeled: the twin refuses
+    the name as the board would."""
+    with pytest.raises(AttributeError, match="no attribute 'is_armed'"):
+        V.VirtualODrive(firmware="0.5.1").axis0.motor.is_armed
+    assert V.VirtualODrive().axis0.motor.is_armed is False
+
+
 def test_clear_errors_the_firmware_way():
     """main.cpp:236-249 odrv.clear_errors (0.5.2+); fw-v0.5.1 axis.hpp:108-116."""
     new, old = _device("0.5.6"), _device("0.5.1")

@@ -4,7 +4,8 @@ client.
 - :mod:`~leglib.device.virtual.firmware`: what the firmware does (states, calibration as
   motion, the watchdog, save and reboot, the DC bus, errors) over a batch of one of
   :class:`leglib.twin.host.Twin`;
-- :mod:`~leglib.device.virtual.tree`: its object tree with the firmware's endpoint names;
+- :mod:`~leglib.device.virtual.tree`: its object tree with the firmware's endpoint names,
+  built from a table of one row per endpoint (``firmware.ENDPOINTS``);
 - :mod:`~leglib.device.virtual.wire`: the endpoint ids of the firmware's own tables
   (:mod:`~leglib.device.virtual.tables`) answered to the installed ``odrive`` client, so
   :func:`find_any` gives the same kind of object as ``odrive.find_any()``.

@@ -2,7 +2,9 @@
 
 The tree mirrors firmware 0.5.6 (default) or 0.5.1, property for property with the
 firmware's endpoint names (``odrv.axis0.controller.config.pos_gain``, ``odrv.error``,
-``odrv.config.enable_brake_resistor``, ...; see ``endpoints_fw-v0.5.x.json``). A v3.6
+``odrv.config.enable_brake_resistor``, ...; see ``endpoints_fw-v0.5.x.json``), declared
+in :data:`ENDPOINTS`: one row per endpoint with its store, type, check and firmware
+versions (:mod:`~leglib.device.virtual.tree`), so adding an endpoint is adding a row. A v3.6
 board has no 0.6 firmware, so there is no 0.6 tree. Unknown attributes raise
 AttributeError, as on the device. Every property read or write is one USB transaction:
 the virtual clock advances by the link latency and the simulated leg moves on in the
@@ -53,7 +55,7 @@ from ...errors import DeviceLostError
 from ...params import OdriveConfig, PlantParams
 from ...twin import layout as L
 from ...twin.host import Twin
-from .tree import _Node, _Prop
+from .tree import Attr, Board, C, Call, Const, Endpoint, Err, Get, I, Key, S, _Node, build_tree, positive
 
 FIRMWARES = ("0.5.1", "0.5.6")
 
@@ -118,6 +120,102 @@ _C_VOLATILE = (L.C_INPUT_POS, L.C_INPUT_VEL, L.C_INPUT_TORQUE, L.C_ABORT_ERROR, 
                L.C_CAL_VEL, L.C_CAL_RAMP) + tuple(range(L.C_TT_XI, L.C_TT_YACC + 1))
 
 
+# -- the object tree: one row per endpoint (leglib/device/virtual/tree.py) ---------------
+# Names as in the firmware's table (tables/endpoints_fw-v0.5.x.json), axis* for both axes; a
+# board row's kernel slots are axis 0's. Stores: C, S, I, Err the kernel's slots; Key the
+# axis's Python state (_axis[a]); Board the board's (_board); Attr a device attribute;
+# Const a value; Get a reading computed by a method here; Call a function; setter= a method
+# here that takes the write with the firmware's side effects. since/until: the first and
+# last release with the endpoint (odrive-interface.yaml of each fw-v0.5.x tag). An endpoint
+# of the table without a row is unmodeled: the wire holds its firmware default.
+ENDPOINTS = (
+    # the axis: its state machine (axis.cpp:455-488), errors, watchdog
+    Endpoint("axis*.requested_state", Key("requested_state"), int, setter="_request_state"),
+    Endpoint("axis*.current_state", Key("state", writable=False), int),
+    Endpoint("axis*.error", Err(L.I_AXIS_ERR), int),
+    Endpoint("axis*.watchdog_feed", Call("_feed")),                          # axis.cpp:165-168
+    Endpoint("axis*.clear_errors", Call("_clear_errors"), until="0.5.1"),    # fw-v0.5.1 axis.hpp:108
+    Endpoint("axis*.config.enable_watchdog", C(L.C_WD_ENABLE), bool),
+    Endpoint("axis*.config.watchdog_timeout", C(L.C_WD_TIMEOUT)),
+    Endpoint("axis*.config.startup_motor_calibration", Key("startup_motor_calibration"), bool),
+    Endpoint("axis*.config.startup_encoder_offset_calibration", Key("startup_encoder_offset_calibration"), bool),
+    Endpoint("axis*.config.startup_closed_loop_control", Key("startup_closed_loop_control"), bool),
+    # the controller
+    Endpoint("axis*.controller.error", Err(L.I_CTRL_ERR), int),
+    Endpoint("axis*.controller.input_pos", C(L.C_INPUT_POS), setter="_set_input_pos"),
+    Endpoint("axis*.controller.input_vel", C(L.C_INPUT_VEL)),
+    Endpoint("axis*.controller.input_torque", C(L.C_INPUT_TORQUE)),
+    Endpoint("axis*.controller.pos_setpoint", S(L.S_POS_SP)),
+    Endpoint("axis*.controller.vel_setpoint", S(L.S_VEL_SP)),
+    Endpoint("axis*.controller.trajectory_done", I(L.I_TRAJ_DONE), bool),
+    Endpoint("axis*.controller.vel_integrator_torque", S(L.S_INTEGRATOR, writable=True)),
+    Endpoint("axis*.controller.config.control_mode", Key("control_mode"), int, setter="_set_control_mode"),
+    Endpoint("axis*.controller.config.input_mode", C(L.C_INPUT_MODE), int, setter="_set_input_mode"),
+    Endpoint("axis*.controller.config.pos_gain", C(L.C_POS_GAIN)),
+    Endpoint("axis*.controller.config.vel_gain", C(L.C_VEL_GAIN)),
+    Endpoint("axis*.controller.config.vel_integrator_gain", C(L.C_VEL_INT_GAIN)),
+    Endpoint("axis*.controller.config.vel_integrator_limit", C(L.C_VEL_INT_LIMIT), check=positive, since="0.5.4"),
+    Endpoint("axis*.controller.config.vel_limit", C(L.C_VEL_LIMIT), check=positive),
+    Endpoint("axis*.controller.config.vel_limit_tolerance", C(L.C_VEL_TOL), check=positive),
+    Endpoint("axis*.controller.config.input_filter_bandwidth", C(L.C_FILTER_BW), check=positive),
+    # the motor
+    Endpoint("axis*.motor.error", Err(L.I_MOTOR_ERR), int),
+    Endpoint("axis*.motor.is_calibrated", Key("motor_calibrated", writable=False), bool),
+    Endpoint("axis*.motor.is_armed", Get("_is_armed"), bool, since="0.5.2"),   # 0.5.1: armed_state
+    Endpoint("axis*.motor.current_control.Iq_measured", S(L.S_IQ_MEAS)),
+    Endpoint("axis*.motor.current_control.Iq_setpoint", S(L.S_IQ)),
+    Endpoint("axis*.motor.config.pole_pairs", Key("pole_pairs"), int, check=positive),
+    Endpoint("axis*.motor.config.torque_constant", C(L.C_KT), check=positive),
+    Endpoint("axis*.motor.config.motor_type", Key("motor_type"), int),
+    Endpoint("axis*.motor.config.current_control_bandwidth", C(L.C_CURRENT_BW), check=positive),
+    Endpoint("axis*.motor.config.current_lim", C(L.C_CURRENT_LIM), check=positive),
+    Endpoint("axis*.motor.config.calibration_current", C(L.C_CAL_CURRENT), check=positive),
+    Endpoint("axis*.motor.config.pre_calibrated", Key("motor_pre_calibrated"), bool, setter="_set_motor_pre_calibrated"),
+    Endpoint("axis*.motor.config.phase_resistance", Get("_phase_resistance")),
+    # the encoder
+    Endpoint("axis*.encoder.error", Key("encoder_error"), int),
+    Endpoint("axis*.encoder.is_ready", Key("encoder_ready", writable=False), bool),
+    Endpoint("axis*.encoder.pos_estimate", S(L.S_POS_EST)),
+    Endpoint("axis*.encoder.vel_estimate", S(L.S_VEL_EST)),
+    Endpoint("axis*.encoder.shadow_count", I(L.I_COUNTS), int),
+    Endpoint("axis*.encoder.count_in_cpr", Get("_count_in_cpr"), int),
+    Endpoint("axis*.encoder.config.cpr", Key("cpr"), int, check=positive),
+    Endpoint("axis*.encoder.config.bandwidth", C(L.C_ENCODER_BW), check=positive),
+    Endpoint("axis*.encoder.config.direction", Key("direction"), int, since="0.5.2"),   # 0.5.1: motor.config
+    Endpoint("axis*.encoder.config.pre_calibrated", Key("encoder_pre_calibrated"), bool,
+             setter="_set_encoder_pre_calibrated"),
+    Endpoint("axis*.encoder.config.use_index", Key("use_index"), bool, setter="_set_use_index"),
+    Endpoint("axis*.encoder.config.calib_range", Const(CALIB_RANGE)),
+    Endpoint("axis*.encoder.config.calib_scan_distance", Const(CALIB_SCAN_DISTANCE)),
+    Endpoint("axis*.encoder.config.calib_scan_omega", Const(CALIB_SCAN_OMEGA)),
+    # the trapezoidal trajectory planner
+    Endpoint("axis*.trap_traj.config.vel_limit", Key("trap_vel_limit"), check=positive),
+    Endpoint("axis*.trap_traj.config.accel_limit", Key("trap_accel_limit"), check=positive),
+    Endpoint("axis*.trap_traj.config.decel_limit", Key("trap_decel_limit"), check=positive),
+    # the board
+    Endpoint("error", Err(L.I_SYS_ERR), int, since="0.5.2"),
+    Endpoint("vbus_voltage", Get("_vbus_voltage")),
+    Endpoint("ibus", S(L.S_IBUS)),
+    Endpoint("brake_resistor_armed", Attr("_brake_armed"), bool),
+    Endpoint("brake_resistor_current", S(L.S_BRAKE_I), since="0.5.3"),
+    Endpoint("serial_number", Get("_serial"), int),
+    Endpoint("fw_version_major", Const(0), int),
+    Endpoint("fw_version_minor", Const(5), int),
+    Endpoint("fw_version_revision", Attr("fw_revision"), int),
+    Endpoint("hw_version_major", Const(3), int),
+    Endpoint("hw_version_minor", Const(6), int),
+    Endpoint("config.brake_resistance", C(L.C_BRAKE_R), check=positive),
+    Endpoint("config.enable_brake_resistor", Board("enable_brake_resistor"), bool,
+             setter="_set_enable_brake_resistor", since="0.5.2"),                # odrive_main.h:82
+    Endpoint("config.max_regen_current", C(L.C_MAX_REGEN)),
+    Endpoint("config.dc_max_positive_current", C(L.C_DC_MAX_POS)),
+    Endpoint("config.dc_max_negative_current", C(L.C_DC_MAX_NEG)),
+    Endpoint("save_configuration", Call("_save_configuration")),             # main.cpp:159-184
+    Endpoint("reboot", Call("_reboot_call")),                                # main.cpp:194
+    Endpoint("clear_errors", Call("_clear_errors"), since="0.5.2"),          # main.cpp:236-249
+)
+
+
 class VirtualODrive:
     """The virtual ODrive. Build it with :func:`leglib.device.session.connect` (backend
     ``"virtual"``) or directly.
@@ -137,6 +235,10 @@ class VirtualODrive:
         scan at ``calibration_current`` cannot carry a loaded leg and fails the CPR check.
         False keeps it on (the device's failure, for tests).
     """
+
+    # the rows the object tree is built from at each boot; a subclass (or a test) that adds
+    # one gets the endpoint in the tree and on the wire
+    endpoints: tuple[Endpoint, ...] = ENDPOINTS
 
     def __init__(self, plant: PlantParams | str = "default", config: OdriveConfig | str = "thesis",
                  seed: int = 0, realtime: bool = False, firmware: str = "0.5.6",
@@ -674,193 +776,43 @@ class VirtualODrive:
         self.reboot()
         raise DeviceLostError("virtual ODrive: reboot() reset the board; reconnect (by serial number)")
 
-    # -- the tree ----------------------------------------------------------------------
-    def _cfg_prop(self, a, index, kind=float, check=None):
-        st = self.st
-
-        def get():
-            return float(st.C[0, a, index])
-
-        def set_(v):
-            if check is not None:
-                check(v)
-            st.C[0, a, index] = v
-        return _Prop(get, set_, kind)
-
-    def _axis_tree(self, a: int) -> _Node:
-        st, ax, dev = self.st, self._axis[a], self
-        path = f"odrv.axis{a}"
-        v056 = self.firmware != "0.5.1"
-
-        def positive(name):
-            def check(v):
-                if not v > 0:
-                    raise ValueError(f"{path}.{name} must be positive, got {v}")
-            return check
-
-        def err_prop(index):
-            def set_(v):
-                st.AI[0, a, index] = v
-            return _Prop(lambda: int(st.AI[0, a, index]), set_, int)
-
-        def ax_prop(key, kind, check=None):
-            def set_(v):
-                if check is not None:
-                    check(v)
-                ax[key] = v
-            return _Prop(lambda: ax[key], set_, kind)
-
-        def positive_int(name):
-            def check(v):
-                if v <= 0:
-                    raise ValueError(f"{path}.{name} must be positive, got {v}")
-            return check
-
-        ctrl_cfg_props = {
-            "control_mode": _Prop(lambda: ax["control_mode"], lambda v: self._set_control_mode(a, v), int),
-            "input_mode": _Prop(lambda: int(st.C[0, a, L.C_INPUT_MODE]), lambda v: self._set_input_mode(a, v), int),
-            "pos_gain": self._cfg_prop(a, L.C_POS_GAIN),
-            "vel_gain": self._cfg_prop(a, L.C_VEL_GAIN),
-            "vel_integrator_gain": self._cfg_prop(a, L.C_VEL_INT_GAIN),
-            "vel_limit": self._cfg_prop(a, L.C_VEL_LIMIT, check=positive("controller.config.vel_limit")),
-            "vel_limit_tolerance": self._cfg_prop(a, L.C_VEL_TOL, check=positive("controller.config.vel_limit_tolerance")),
-            "input_filter_bandwidth": self._cfg_prop(a, L.C_FILTER_BW, check=positive("controller.config.input_filter_bandwidth")),
-        }
-        if v056:   # 0.5.4+
-            ctrl_cfg_props["vel_integrator_limit"] = self._cfg_prop(a, L.C_VEL_INT_LIMIT, check=positive("controller.config.vel_integrator_limit"))
-        controller = _Node(dev, path + ".controller", {
-            "input_pos": _Prop(lambda: float(st.C[0, a, L.C_INPUT_POS]), lambda v: self._set_input_pos(a, v)),
-            "input_vel": self._cfg_prop(a, L.C_INPUT_VEL),
-            "input_torque": self._cfg_prop(a, L.C_INPUT_TORQUE),
-            "pos_setpoint": _Prop(lambda: float(st.AS[0, a, L.S_POS_SP])),
-            "vel_setpoint": _Prop(lambda: float(st.AS[0, a, L.S_VEL_SP])),
-            "trajectory_done": _Prop(lambda: bool(st.AI[0, a, L.I_TRAJ_DONE]), None, bool),
-            "error": err_prop(L.I_CTRL_ERR),
-            "vel_integrator_torque": _Prop(lambda: float(st.AS[0, a, L.S_INTEGRATOR]),
-                                           lambda v: st.AS[0, a].__setitem__(L.S_INTEGRATOR, v)),
-        }, {"config": _Node(dev, path + ".controller.config", ctrl_cfg_props)})
-
-        def set_motor_pre_calibrated(v):
-            # motor.hpp:54-57
-            ax["motor_pre_calibrated"] = v
-            ax["motor_calibrated"] = ax["motor_calibrated"] or v
-
-        def set_encoder_pre_calibrated(v):
-            # encoder.cpp:130-138: an incremental encoder without a found index cannot be
-            # pre-calibrated: the flag reads back False
-            ax["encoder_pre_calibrated"] = bool(v) and ax["encoder_ready"] and ax["use_index"] and False
-
-        def set_use_index(v):
-            if v:
-                raise ValueError(f"{path}.encoder.config.use_index: the index search is not simulated "
-                                 f"(this leg's encoders are used without index)")
-            ax["use_index"] = False
-
-        mcfg_props = {
-            "pole_pairs": ax_prop("pole_pairs", int, positive_int("motor.config.pole_pairs")),
-            "torque_constant": self._cfg_prop(a, L.C_KT, check=positive("motor.config.torque_constant")),
-            "motor_type": ax_prop("motor_type", int),
-            "current_control_bandwidth": self._cfg_prop(a, L.C_CURRENT_BW, check=positive("motor.config.current_control_bandwidth")),
-            "current_lim": self._cfg_prop(a, L.C_CURRENT_LIM, check=positive("motor.config.current_lim")),
-            "calibration_current": self._cfg_prop(a, L.C_CAL_CURRENT, check=positive("motor.config.calibration_current")),
-            "pre_calibrated": _Prop(lambda: ax["motor_pre_calibrated"], set_motor_pre_calibrated, bool),
-            "phase_resistance": _Prop(lambda: self.twin.motor.phase_resistance if ax["motor_calibrated"] else 0.0),
-        }
-        motor = _Node(dev, path + ".motor", {
-            "error": err_prop(L.I_MOTOR_ERR),
-            "is_calibrated": _Prop(lambda: ax["motor_calibrated"], None, bool),
-            "is_armed": _Prop(lambda: bool(st.AI[0, a, L.I_MODE] != L.MODE_IDLE), None, bool),
-        }, {"config": _Node(dev, path + ".motor.config", mcfg_props),
-            "current_control": _Node(dev, path + ".motor.current_control", {
-                "Iq_measured": _Prop(lambda: float(st.AS[0, a, L.S_IQ_MEAS])),
-                "Iq_setpoint": _Prop(lambda: float(st.AS[0, a, L.S_IQ]))})})
-        enc_cfg_props = {
-            "cpr": ax_prop("cpr", int, positive_int("encoder.config.cpr")),
-            "bandwidth": self._cfg_prop(a, L.C_ENCODER_BW, check=positive("encoder.config.bandwidth")),
-            "pre_calibrated": _Prop(lambda: ax["encoder_pre_calibrated"], set_encoder_pre_calibrated, bool),
-            "use_index": _Prop(lambda: ax["use_index"], set_use_index, bool),
-            "calib_range": _Prop(lambda: CALIB_RANGE),
-            "calib_scan_distance": _Prop(lambda: CALIB_SCAN_DISTANCE),
-            "calib_scan_omega": _Prop(lambda: CALIB_SCAN_OMEGA),
-        }
-        if v056:
-            enc_cfg_props["direction"] = ax_prop("direction", int)
-        encoder = _Node(dev, path + ".encoder", {
-            "pos_estimate": _Prop(lambda: float(st.AS[0, a, L.S_POS_EST])),
-            "vel_estimate": _Prop(lambda: float(st.AS[0, a, L.S_VEL_EST])),
-            "shadow_count": _Prop(lambda: int(st.AI[0, a, L.I_COUNTS]), None, int),
-            "count_in_cpr": _Prop(lambda: int(st.AI[0, a, L.I_COUNTS]) % ax["cpr"], None, int),
-            "is_ready": _Prop(lambda: ax["encoder_ready"], None, bool),
-            "error": _Prop(lambda: ax["encoder_error"], lambda v: ax.__setitem__("encoder_error", v), int),
-        }, {"config": _Node(dev, path + ".encoder.config", enc_cfg_props)})
-        trap = _Node(dev, path + ".trap_traj", {}, {"config": _Node(dev, path + ".trap_traj.config", {
-            "vel_limit": ax_prop("trap_vel_limit", float, positive("trap_traj.config.vel_limit")),
-            "accel_limit": ax_prop("trap_accel_limit", float, positive("trap_traj.config.accel_limit")),
-            "decel_limit": ax_prop("trap_decel_limit", float, positive("trap_traj.config.decel_limit"))})})
-        axis_cfg = _Node(dev, path + ".config", {
-            "enable_watchdog": _Prop(lambda: bool(st.C[0, a, L.C_WD_ENABLE]),
-                                     lambda v: st.C[0, a].__setitem__(L.C_WD_ENABLE, 1.0 if v else 0.0), bool),
-            "watchdog_timeout": self._cfg_prop(a, L.C_WD_TIMEOUT),
-            "startup_motor_calibration": ax_prop("startup_motor_calibration", bool),
-            "startup_encoder_offset_calibration": ax_prop("startup_encoder_offset_calibration", bool),
-            "startup_closed_loop_control": ax_prop("startup_closed_loop_control", bool),
-        })
-        axis_props = {
-            "requested_state": _Prop(lambda: ax["requested_state"], lambda v: self._request_state(a, v), int),
-            "current_state": _Prop(lambda: ax["state"], None, int),
-            "error": err_prop(L.I_AXIS_ERR),
-        }
-        methods = {"watchdog_feed": lambda: self._feed(a)}
-        if not v056:
-            methods["clear_errors"] = lambda: self._clear_errors(a)   # fw-v0.5.1 axis.hpp:108
-        return _Node(dev, path, axis_props, {"controller": controller, "motor": motor, "encoder": encoder,
-                                             "trap_traj": trap, "config": axis_cfg}, methods)
-
+    # -- the tree (built from ENDPOINTS) and what its rows name ------------------------
     def _build_tree(self) -> _Node:
-        st = self.st
-        v056 = self.firmware != "0.5.1"
+        """The object tree of this boot from :attr:`endpoints` (see :mod:`.tree`); the
+        endpoints by name in ``_leaves`` (what the wire serves)."""
+        tree, self._leaves = build_tree(self, self.endpoints, self.firmware)
+        return tree
 
-        def set_brake_resistance(v):
-            if not v > 0:
-                raise ValueError(f"odrv.config.brake_resistance must be positive, got {v}")
-            st.C[0, 0, L.C_BRAKE_R] = v
+    def _set_motor_pre_calibrated(self, a: int, value: bool):
+        # motor.hpp:54-57
+        ax = self._axis[a]
+        ax["motor_pre_calibrated"] = value
+        ax["motor_calibrated"] = ax["motor_calibrated"] or value
 
-        def c0(index):
-            def set_(v):
-                st.C[0, 0, index] = v
-            return _Prop(lambda: float(st.C[0, 0, index]), set_)
+    def _set_encoder_pre_calibrated(self, a: int, value: bool):
+        # encoder.cpp:130-138: an incremental encoder without a found index cannot be
+        # pre-calibrated: the flag reads back False
+        ax = self._axis[a]
+        ax["encoder_pre_calibrated"] = bool(value) and ax["encoder_ready"] and ax["use_index"] and False
 
-        cfg_props = {
-            "brake_resistance": _Prop(lambda: float(st.C[0, 0, L.C_BRAKE_R]), set_brake_resistance),
-            "max_regen_current": c0(L.C_MAX_REGEN),
-            "dc_max_positive_current": c0(L.C_DC_MAX_POS),
-            "dc_max_negative_current": c0(L.C_DC_MAX_NEG),
-        }
-        if v056:
-            cfg_props["enable_brake_resistor"] = _Prop(lambda: self._board["enable_brake_resistor"],
-                                                       self._set_enable_brake_resistor, bool)
-        props = {
-            "vbus_voltage": _Prop(lambda: float(st.C[0, 0, L.C_VBUS]) + 0.05 * float(self._rng.standard_normal())),
-            "ibus": _Prop(lambda: float(st.AS[0, 0, L.S_IBUS])),
-            "brake_resistor_armed": _Prop(lambda: self._brake_armed, None, bool),
-            "serial_number": _Prop(self._serial, None, int),
-            "fw_version_major": _Prop(lambda: 0, None, int),
-            "fw_version_minor": _Prop(lambda: 5, None, int),
-            "fw_version_revision": _Prop(lambda: self.fw_revision, None, int),
-            "hw_version_major": _Prop(lambda: 3, None, int),
-            "hw_version_minor": _Prop(lambda: 6, None, int),
-        }
-        if v056:
-            def set_sys_err(v):
-                st.AI[0, 0, L.I_SYS_ERR] = v
-            props["error"] = _Prop(lambda: int(st.AI[0, 0, L.I_SYS_ERR]), set_sys_err, int)
-            props["brake_resistor_current"] = _Prop(lambda: float(st.AS[0, 0, L.S_BRAKE_I]))
-        methods = {"save_configuration": self._save_configuration, "reboot": self._reboot_call}
-        if v056:
-            methods["clear_errors"] = self._clear_errors                       # main.cpp:236
-        return _Node(self, "odrv", props, {
-            "axis0": self._axis_tree(0), "axis1": self._axis_tree(1),
-            "config": _Node(self, "odrv.config", cfg_props)}, methods)
+    def _set_use_index(self, a: int, value: bool):
+        if value:
+            raise ValueError(f"odrv.axis{a}.encoder.config.use_index: the index search is not simulated "
+                             f"(this leg's encoders are used without index)")
+        self._axis[a]["use_index"] = False
+
+    def _is_armed(self, a: int) -> bool:
+        return bool(self.st.AI[0, a, L.I_MODE] != L.MODE_IDLE)
+
+    def _count_in_cpr(self, a: int) -> int:
+        return int(self.st.AI[0, a, L.I_COUNTS]) % self._axis[a]["cpr"]
+
+    def _phase_resistance(self, a: int) -> float:
+        # the calibration's measurement (motor.cpp:416-423); 0 until the motor is calibrated
+        return self.twin.motor.phase_resistance if self._axis[a]["motor_calibrated"] else 0.0
+
+    def _vbus_voltage(self) -> float:
+        return float(self.st.C[0, 0, L.C_VBUS]) + 0.05 * float(self._rng.standard_normal())
 
     # the tree's attributes are the device's (through the handle of the last connection)
     def __getattr__(self, name):

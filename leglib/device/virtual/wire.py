@@ -11,8 +11,9 @@ pos_gain``, ``odrv.save_configuration()`` and ``odrive.utils.dump_errors(odrv)``
 
 Every endpoint of the table resolves:
 
-- endpoints the firmware model implements (its tree: ``VirtualODrive._tree``) are read,
-  written and called there, each one USB transaction on the virtual clock;
+- endpoints the firmware model implements (the rows of its table,
+  :data:`leglib.device.virtual.firmware.ENDPOINTS`, built into its tree) are read, written
+  and called there, each one USB transaction on the virtual clock;
 - the firmware identity (``fw_version_*``) is that of the table served;
 - every other endpoint is *unmodeled*: it holds the firmware's default value
   (:func:`firmware_defaults`, extracted from the firmware's sources, else zero), a write that changes it warns once per device
@@ -50,6 +51,7 @@ from odrive.sync_tree import SyncObject
 from ...errors import DeviceLostError
 from ...params import PlantParams, load_plant
 from .firmware import VirtualODrive
+from .tree import Endpoint, Leaf, model_paths
 
 FIRMWARE_TABLES = {"0.5.1": "endpoints_fw-v0.5.1.json", "0.5.6": "endpoints_fw-v0.5.6.json"}
 FIRMWARE_ALIASES = {"0.5": "0.5.6"}
@@ -186,25 +188,13 @@ class _Endpoint:
     source: str          # "model", "identity" or "unmodeled"
     node: object = None  # the model's _Node holding it (source "model")
     leaf: str = ""
+    row: Endpoint = None  # the model's row (source "model")
     outputs: tuple = ()
 
 
-def _resolve(sim, path: str):
-    """The model node holding ``path`` and whether it is a property/method there, or None."""
-    node = sim._tree
-    *parents, leaf = path.split(".")
-    for name in parents:
-        node = node._children.get(name)
-        if node is None:
-            return None
-    if leaf in node._props:
-        return node, leaf, "property"
-    if leaf in node._methods:
-        return node, leaf, "function"
-    return None
-
-
-def _build_endpoints(sim, version: str) -> dict[int, _Endpoint]:
+def _build_endpoints(leaves: dict, version: str) -> dict[int, _Endpoint]:
+    """The table of ``version`` resolved onto the model's endpoints ``leaves`` (``{name:
+    Leaf(node, name, row)}``, as :func:`leglib.device.virtual.tree.build_tree` gives)."""
     eps = {}
     for path, e in flatten(_table_raw(version)[1]).items():
         kind = "function" if e["type"] == "function" else "property"
@@ -214,15 +204,16 @@ def _build_endpoints(sim, version: str) -> dict[int, _Endpoint]:
         if kind == "property" and path in _IDENTITY:
             ep.source = "identity"
         else:
-            hit = _resolve(sim, path)
-            if hit is not None and hit[2] == kind:
-                ep.source, ep.node, ep.leaf = "model", hit[0], hit[1]
+            hit = leaves.get(path)
+            if hit is not None and hit.row.function == (kind == "function"):
+                ep.source, ep.node, ep.leaf, ep.row = "model", hit.node, hit.name, hit.row
         eps[ep.id] = ep
     return eps
 
 
 def endpoint_coverage(sim=None, firmware: str = "0.5.6") -> dict:
-    """How the table of ``firmware`` maps onto the firmware model.
+    """How the table of ``firmware`` maps onto the firmware model: that of ``sim`` (a
+    :class:`VirtualODrive`), else the rows of :data:`VirtualODrive.endpoints`.
 
     Returns
     -------
@@ -230,10 +221,13 @@ def endpoint_coverage(sim=None, firmware: str = "0.5.6") -> dict:
     (firmware version, from the table), ``"unmodeled"`` (held at the firmware default).
     """
     version = normalize_firmware(firmware)
-    if sim is None:
-        sim = VirtualODrive(firmware=_model_firmware(version))
+    if sim is not None:
+        leaves = sim._leaves
+    else:
+        rows = model_paths(VirtualODrive.endpoints, _model_firmware(version))
+        leaves = {path: Leaf(None, path.rpartition(".")[2], row) for path, (_, row) in rows.items()}
     out = {"model": [], "identity": [], "unmodeled": []}
-    for ep in _build_endpoints(sim, version).values():
+    for ep in _build_endpoints(leaves, version).values():
         out[ep.source].append(ep.path)
     return {k: sorted(v) for k, v in out.items()}
 
@@ -318,7 +312,7 @@ class VirtualUSBDevice:
         self._sim = record.sim
         self._boot = _boot_count(record.sim)
         self._link = record.link
-        self._endpoints = _build_endpoints(record.sim, record.version)
+        self._endpoints = _build_endpoints(record.sim._leaves, record.version)
         self._raw_json, _ = _table_raw(record.version)
         self._crc = _crc16(self._raw_json)
         self.info = DiscoveryInfo(device_type=DeviceType.RUNTIME, serial_number=f"{record.serial:012X}")
@@ -391,7 +385,7 @@ class VirtualUSBDevice:
 
     def _write_one(self, ep: _Endpoint, value):
         if ep.source == "model":
-            if ep.node._props[ep.leaf].set is None:
+            if not ep.row.writable:
                 raise NotImplementedError(f"virtual ODrive: writing {ep.path} is not modeled (the "
                                           f"firmware accepts it)")
             return self._model(lambda: setattr(ep.node, ep.leaf, value))
