@@ -62,6 +62,22 @@ PROPERTY_PATHS = {
 # how long leglib waits for the axis thread to take up a requested state (it does so within
 # about 1 ms, fw-v0.5.6 axis.cpp:447-488) [s]
 STATE_TIMEOUT = 2.0
+# the axis states of firmware 0.5.x by number (Firmware/odrive-interface.yaml, AxisState)
+STATE_NAMES = ("UNDEFINED", "IDLE", "STARTUP_SEQUENCE", "FULL_CALIBRATION_SEQUENCE", "MOTOR_CALIBRATION",
+               "SENSORLESS_CONTROL", "ENCODER_INDEX_SEARCH", "ENCODER_OFFSET_CALIBRATION", "CLOSED_LOOP_CONTROL",
+               "LOCKIN_SPIN", "ENCODER_DIR_FIND", "HOMING", "ENCODER_HALL_POLARITY_CALIBRATION",
+               "ENCODER_HALL_PHASE_CALIBRATION")
+# error flags of firmware 0.5.x that leglib acts on (odrive.enums keeps these values)
+AXIS_ERROR_WATCHDOG_TIMER_EXPIRED = 0x800
+MOTOR_ERROR_BRAKE_RESISTOR_DISARMED = 0x800000
+ENCODER_ERROR_CPR_POLEPAIRS_MISMATCH = 0x2
+ENCODER_ERROR_NO_RESPONSE = 0x4
+
+
+def state_name(state: int) -> str:
+    """An axis state's firmware name with its number, e.g. ``CLOSED_LOOP_CONTROL (8)``."""
+    name = STATE_NAMES[state] if 0 <= state < len(STATE_NAMES) else "an unknown state"
+    return f"{name} ({state})"
 
 
 def _virtual_model(odrv):
@@ -271,8 +287,11 @@ def safe(dev: Device):
             for a in (0, 1):
                 try:
                     dev.set(a, "enable_watchdog", False)
-                except Exception:  # noqa: BLE001 - never raise from the safety path
-                    pass
+                except Exception as exc:  # noqa: BLE001 - never raise from the safety path
+                    warnings.warn(f"both axes are IDLE but axis{a}'s watchdog could not be switched off "
+                                  f"({type(exc).__name__}: {exc}): it will flag WATCHDOG_TIMER_EXPIRED; "
+                                  f"clear_errors after reconnecting", stacklevel=3)
+                    break
 
 
 def connect(backend: str = "virtual", *, leg: str | LegParams = "thesis",

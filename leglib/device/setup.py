@@ -15,19 +15,26 @@ import numpy as np
 from ..errors import ExperimentError
 from ..params import OdriveConfig
 from .session import (
+    AXIS_ERROR_WATCHDOG_TIMER_EXPIRED,
     AXIS_STATE_ENCODER_OFFSET_CALIBRATION,
     AXIS_STATE_FULL_CALIBRATION_SEQUENCE,
     AXIS_STATE_IDLE,
     AXIS_STATE_UNDEFINED,
+    ENCODER_ERROR_CPR_POLEPAIRS_MISMATCH,
+    ENCODER_ERROR_NO_RESPONSE,
+    MOTOR_ERROR_BRAKE_RESISTOR_DISARMED,
     Deadline,
     Device,
     _reconnect,
     as_device,
     check_gains,
     clear_errors,
+    describe_errors,
     error_text,
+    errors,
     has_system_error,
     safe,
+    state_name,
     wait_states,
 )
 
@@ -165,12 +172,29 @@ def calibrate(dev: Device, timeout: float = 60.0, poll: float = 0.1, zero: bool 
     dev = as_device(dev)
     if isinstance(timeout, bool) or not (isinstance(timeout, (int, float)) and math.isfinite(timeout) and timeout > 0):
         raise ValueError(f"timeout must be a positive number of seconds, got {timeout!r}")
+    if isinstance(poll, bool) or not (isinstance(poll, (int, float)) and 0 < poll <= CALIBRATION_WATCHDOG / 3):
+        raise ValueError(f"poll must be a number of seconds in (0, {CALIBRATION_WATCHDOG / 3:g}] (the watchdog of "
+                         f"{CALIBRATION_WATCHDOG:g} s is fed every poll), got {poll!r}")
+    for a in (0, 1):
+        state, pending = int(dev.get(a, "current_state")), int(dev.get(a, "requested_state"))
+        if state != AXIS_STATE_IDLE or pending != AXIS_STATE_UNDEFINED:
+            raise ExperimentError(f"axis{a} is in {state_name(state)}"
+                                  + (f" with {state_name(pending)} requested" if pending else "")
+                                  + ": an earlier calibration or experiment still runs (an interrupted one "
+                                    "finishes on the board by itself and ends IDLE); wait for it, or set "
+                                    "both axes IDLE, then calibrate")
     before = _rest_positions(dev) if zero else None
     with safe(dev):
         for a in (0, 1):
             if int(dev.get(a, "error")):
                 raise ExperimentError(f"axis{a} has an error before calibration: {error_text(dev, a)}; "
                                       f"inspect it, then call leglib.device.session.clear_errors(odrv)")
+        # the calibration moves the leg: under the watchdog, so a link lost meanwhile stops it
+        # (the watchdog counts down in every state, calibration included, axis.cpp:165-182)
+        for a in (0, 1):
+            dev.set(a, "watchdog_timeout", CALIBRATION_WATCHDOG)
+            dev.axis(a).watchdog_feed()
+            dev.set(a, "enable_watchdog", True)
         for a in (0, 1):
             request = (AXIS_STATE_ENCODER_OFFSET_CALIBRATION if bool(dev.get(a, "is_calibrated"))
                        else AXIS_STATE_FULL_CALIBRATION_SEQUENCE)
@@ -178,14 +202,15 @@ def calibrate(dev: Device, timeout: float = 60.0, poll: float = 0.1, zero: bool 
             deadline = Deadline(dev, timeout, f"calibration of axis{a}")
             while True:
                 dev.sleep(poll)
+                for b in (0, 1):
+                    dev.axis(b).watchdog_feed()
                 if int(dev.get(a, "requested_state")) == AXIS_STATE_UNDEFINED \
                         and int(dev.get(a, "current_state")) == AXIS_STATE_IDLE:
                     break
-                deadline.check(f" (state {int(dev.get(a, 'current_state'))})")
+                deadline.check(f" (state {state_name(int(dev.get(a, 'current_state')))})")
             if int(dev.get(a, "error")) or not bool(dev.get(a, "is_ready")):
-                raise ExperimentError(f"axis{a} calibration failed: {error_text(dev, a)} "
-                                      f"(check cpr and pole_pairs against the hardware, and that the "
-                                      f"leg can swing freely)")
+                raise ExperimentError(f"axis{a} calibration failed: {describe_errors(errors(dev))}"
+                                      f"{_calibration_advice(dev, a)}")
     if zero:
         after = _rest_positions(dev)
         shift = np.round(after - before)   # whole turns: the counts' re-reference
@@ -196,6 +221,26 @@ def calibrate(dev: Device, timeout: float = 60.0, poll: float = 0.1, zero: bool 
                           f"{np.round(after - before - shift, 3)} turn): zeroed where it rests now",
                           stacklevel=2)
             dev.axes = dev.axes.zeroed(after)
+
+
+# the watchdog of a calibration [s] (fed every poll)
+CALIBRATION_WATCHDOG = 0.5
+
+
+def _calibration_advice(dev, a: int) -> str:
+    """What to do about a failed calibration, from the flags that failed it."""
+    e = errors(dev)[f"axis{a}"]
+    if e["motor_error"] & MOTOR_ERROR_BRAKE_RESISTOR_DISARMED:
+        return (": the brake resistor is enabled but not armed (a save that did not reboot the board, or a "
+                "bus fault): clear_errors re-arms it, a reboot does too")
+    if e["error"] & AXIS_ERROR_WATCHDOG_TIMER_EXPIRED:
+        return ": the watchdog expired (the link was lost or the host stalled); check the cable, clear, retry"
+    if e["encoder_error"] & ENCODER_ERROR_CPR_POLEPAIRS_MISMATCH:
+        return (": the scan moved more or less than cpr and pole_pairs say: check them against the hardware "
+                "and that the leg can swing freely (and carries no payload)")
+    if e["encoder_error"] & ENCODER_ERROR_NO_RESPONSE:
+        return ": the scan did not move the encoder: check its cable, the motor phases, the calibration current"
+    return ""
 
 
 def _rest_positions(dev: Device, settle: float = 1.0, max_speed: float = 0.01,

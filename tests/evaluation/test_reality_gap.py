@@ -47,7 +47,9 @@ def test_effects_off_give_the_numbers_of_the_kernel_without_them():
     commit 44eb938, which has no effects at all): with every effect off the kernel takes the
     same path, bit for bit (encoder counts, a five-bar and
     an independent-inertia batch, a device's calibration and step). A deliberate change of
-    the kernel's arithmetic must renew them."""
+    the kernel's arithmetic must renew them; so must a change of the transactions a
+    device's calibration makes (the step starts at that device time: the calibration under
+    the watchdog, fed every poll, renewed the last one; the kernel's two did not change)."""
     plant = load_plant("default")
     assert plant.unmodeled == ()
     assert np.all(Twin(plant).FR[14:] == 0.0)
@@ -59,7 +61,7 @@ def test_effects_off_give_the_numbers_of_the_kernel_without_them():
     lg.configure(d)
     lg.calibrate(d)
     s = lg.step_response(d, 40, 0.08, 0.01)
-    assert _fp(np.round(np.degrees(s.q1) * 1e6)) == "5d56e19113c70eac"
+    assert _fp(np.round(np.degrees(s.q1) * 1e6)) == "6a09db9e1b45fe74"
     assert _fp(d.sim.st.AI[0, :, L.I_COUNTS]) == "20d7f70f65e3b03e"
 
 
