@@ -65,6 +65,15 @@ time, and checks the sidecar's types, sample count, hash, columns, angle convent
 :data:`EXCERPT` characters. :func:`read_measurements` reads a directory; with
 ``strict=False`` it skips bad files and reports each (and warns), never silently.
 
+Text
+----
+A row is ``f"{t:.6f},{q1:.6f},{q2:.6f}\\n"`` (the thesis's format), written by numpy
+(:func:`_csv_bytes`: the same bytes as Python's formatting, so files written before keep
+their SHA-256); a sidecar is ``json.dumps`` with sorted keys, indented by two. A plain
+file (digits, signs, points, exponents, commas and newlines: what leglib writes) is read
+by ``np.loadtxt``; any other file, and one that breaks a rule, by the row-by-row reader,
+which reads it or words the error.
+
 Files are never rewritten (writing an existing name is an error) and are created with
 the user's umask.
 """
@@ -74,6 +83,7 @@ from __future__ import annotations
 import datetime as _dt
 import errno
 import hashlib
+import io
 import json
 import math
 import os
@@ -86,7 +96,6 @@ import numpy as np
 
 from .._version import provenance
 from ..errors import MeasurementError
-from . import csvcodec
 from .atomic import write_bytes_atomic
 from .claims import claim
 from .names import (
@@ -115,32 +124,56 @@ MAX_BATCH_SIDECAR_BYTES = 64 << 20
 BATCH_POINT_FIELDS = ("abort_reason", "completed", "gains", "samples")   # a batch's points hold these
 
 
+def _csv_bytes(data) -> bytes:
+    """Rows of ``data`` (2-D float) as ``"%.6f,%.6f,...\\n"`` ASCII: Python's text, to the byte.
 
-
-
-
-
-
-
-
-
-
-
-
-
-
-def _csv_bytes(data: np.ndarray):
-    """Rows of ``data`` as ``"%.6f,%.6f,...\\n"`` ASCII (bytes, or a uint8 array of them
-    valid until the next call in this thread: hash and write it at once): compiled, or
-    (for the values it cannot format exactly: ties, huge, non-finite) one Python format of
-    the whole table."""
-
+    numpy lays out the digits (Python's own formatting of the thesis grid's 900,000
+    numbers takes 0.2-0.4 s, a third of the grid's budget from sweep to map; numpy about a
+    sixth of that).
+    ``.6f`` writes the multiple of 1e-6 nearest to ``x``. The product ``y = |x| 1e6`` is
+    off the exact value by at most ``y 2^-53``, so where its fractional part is further
+    than ``max(y) 2^-52`` from one half, rounding ``y`` gives ``.6f``'s digits; the few
+    values nearer a half take theirs from Python's own format, and a table with a value
+    of 2^50 / 1e6 or more (or NaN, infinity) is formatted by Python whole. The
+    sign is written for every negative value, -0.0 and values that round to zero
+    included, as Python does.
+    """
     data = np.atleast_2d(np.asarray(data, dtype=float))
-    body = csvcodec.format_fixed6_array(data, reuse=True)
-    if body is None:
-        row = ",".join(["%.6f"] * data.shape[1]) + "\n"
-        body = ((row * data.shape[0]) % tuple(data.ravel().tolist())).encode("ascii")
-    return body
+    n, c = data.shape
+    if data.size == 0:
+        return b"\n" * n if c == 0 else b""
+    y = np.abs(data) * 1e6
+    top = y.max()
+    if not top < 2.0 ** 50:   # also NaN
+        row = ",".join(["%.6f"] * c) + "\n"
+        return ((row * n) % tuple(data.ravel().tolist())).encode("ascii")
+    micro = np.rint(y)
+    off = np.abs(np.subtract(y, micro, out=y), out=y)   # distance to the nearest integer
+    near = np.flatnonzero(off >= 0.5 - top * 2.0 ** -52)
+    micro = micro.astype(np.int64)
+    if near.size:
+        micro.flat[near] = [int(f"{v:.6f}".replace(".", "")) for v in np.abs(data.flat[near]).tolist()]
+    units, millionths = np.divmod(micro, 1_000_000)
+    units, millionths = units.astype(np.int32), millionths.astype(np.int32)   # < 2^50 / 1e6 < 2^31
+    k = len(str(int(units.max())))   # integer digits of the widest number
+    # one field: sign, k integer digits, point, 6 decimals, separator; the bytes left 0
+    # (no sign, leading zeros) are dropped at the end
+    text = np.zeros((n, c, k + 9), np.uint8)
+    text[..., 0] = np.signbit(data) * np.uint8(ord("-"))
+    for place in range(k):   # the integer digits from the ones; a zero of place >= 1 where
+        # the number is below 10^place (nothing left) is a leading zero, left out
+        higher = units // 10
+        digit = units - 10 * higher + 48
+        text[..., k - place] = digit if place == 0 else digit * (units != 0)
+        units = higher
+    text[..., k + 1] = ord(".")
+    for place in range(6):
+        higher = millionths // 10
+        text[..., k + 7 - place] = millionths - 10 * higher + 48
+        millionths = higher
+    text[..., k + 8] = ord(",")
+    text[:, -1, k + 8] = ord("\n")
+    return text[text != 0].tobytes()
 
 
 def write_measurement(out_dir: str | Path, t, angle1_deg, angle2_deg, meta: dict,
@@ -180,7 +213,7 @@ def write_measurement(out_dir: str | Path, t, angle1_deg, angle2_deg, meta: dict
                    "format": FORMAT, "columns": COLUMNS, "angles": "absolute",
                    "gains": None if gains is None else [float(g) for g in gains],
                    "samples": int(t.size), "csv_sha256": hashlib.sha256(body).hexdigest()}
-        text = _json_text(sidecar)
+        text = _sidecar_text(sidecar)
         try:
             write_bytes_atomic(side, text)
         except FileExistsError:
@@ -252,11 +285,11 @@ def write_batch(out_dir: str | Path, series, meta: dict, when: _dt.datetime | No
         raise ValueError(f"write_batch: measurement {k}: values must be finite and angles within "
                          f"+-{ANGLE_LIMIT_DEG} deg")
     body = _csv_bytes(data)
-    meta = json.loads(_COMPACT.encode(meta))   # plain JSON values (numpy scalars too); TypeError else
+    meta = json.loads(json.dumps(meta, default=_json_default))   # plain JSON values (numpy scalars too); TypeError else
     sidecar = {**provenance(), **meta, "format": BATCH_FORMAT, "columns": COLUMNS, "angles": "absolute",
                "points": points, "samples": int(data.shape[0]),
                "csv_sha256": hashlib.sha256(body).hexdigest()}
-    text = _json_text(sidecar, one_per_line=("points",))
+    text = _sidecar_text(sidecar)
     for _ in range(100):
         path = out_dir / batch_filename(when)
         mine = claim(out_dir, BATCH_RE.match(path.name).group("uid"))
@@ -272,49 +305,12 @@ def write_batch(out_dir: str | Path, series, meta: dict, when: _dt.datetime | No
         finally:
             mine.release()
     raise FileExistsError(f"{out_dir}: could not find a free batch name")
-_LAYOUTS: dict = {}  # compact JSON of a nested value -> its indented layout (see _json_text)
-_json_string = json.encoder.encode_basestring_ascii  # what json writes for a str (ensure_ascii)
-_JSON_SCALARS = (str, int, float, type(None))  # bool is an int
 
 
-def _json_text(obj, one_per_line=()) -> bytes:
-    """``json.dumps(obj, indent=2, sort_keys=True, default=_json_default)``, the same text;
-    except that the lists under the keys ``one_per_line`` are written one compact element
-    a line (a batch's measurements).
-
-    json lays out indented text in Python (about 0.2 ms for a sidecar). Here the top level
-    is laid out directly and each nested value's layout is remembered by its compact JSON
-    (written by json's compiled encoder): a sweep's sidecars repeat the same device
-    description. Anything else (no dict, other key or value types) goes to json.dumps.
-    """
-    if not (isinstance(obj, dict) and obj and all(type(k) is str for k in obj)
-            and all(isinstance(v, _JSON_SCALARS + (dict, list, tuple)) for v in obj.values())):
-        if one_per_line:
-            raise TypeError("_json_text: one_per_line needs a dict of JSON values")
-        return json.dumps(obj, indent=2, sort_keys=True, default=_json_default).encode()
-    lines = []
-    for k in sorted(obj):
-        v = obj[k]
-        if k in one_per_line and isinstance(v, (list, tuple)) and v:
-            text = "[\n    " + ",\n    ".join(_COMPACT.encode(x) for x in v) + "\n  ]"
-        elif isinstance(v, (dict, list, tuple)) and v:
-            compact = _COMPACT.encode(v)
-            text = _LAYOUTS.get(compact)
-            if text is None:
-                text = _INDENTED.encode(v).replace("\n", "\n  ")
-                if len(_LAYOUTS) >= 64:
-                    _LAYOUTS.clear()
-                _LAYOUTS[compact] = text
-        elif type(v) is str:
-            text = _json_string(v)
-        elif v is None or v is True or v is False:
-            text = "null" if v is None else "true" if v else "false"
-        elif type(v) is int or (type(v) is float and math.isfinite(v)):
-            text = repr(v)
-        else:
-            text = _COMPACT.encode(v)
-        lines.append(f"  {_json_string(k)}: {text}")
-    return ("{\n" + ",\n".join(lines) + "\n}").encode()
+def _sidecar_text(sidecar: dict) -> bytes:
+    """A sidecar's text: ``json.dumps`` with sorted keys, indented by two (numpy values as
+    Python's)."""
+    return json.dumps(sidecar, indent=2, sort_keys=True, default=_json_default).encode()
 
 
 def write_table(path: str | Path, data) -> Path:
@@ -322,27 +318,10 @@ def write_table(path: str | Path, data) -> Path:
     return write_bytes_atomic(path, _csv_bytes(data))
 
 
-def _read_into_scratch(fd: int, size: int):
-    """The ``size`` bytes of the open regular file ``fd`` in this thread's scratch buffer
-    for reading (:func:`leglib.files.csvcodec.scratch`; a memoryview of it, valid until the next
-    call), or None when the file reads otherwise than its size said (the caller reads it
-    the careful way)."""
-
-    view = memoryview(csvcodec.scratch("read", size + 1))[:size + 1]
-    n = os.readv(fd, [view])
-    if n != size:
-        os.lseek(fd, 0, os.SEEK_SET)
-        return None
-    return view[:n]
-
-
-def _read_regular(path: Path, limit: int, what: str, missing_ok: bool = False, scratch: bool = False):
+def _read_regular(path: Path, limit: int, what: str, missing_ok: bool = False) -> bytes | None:
     """The bytes of ``path`` if it is a regular file (symlinks followed) of at most ``limit``
     bytes; MeasurementError otherwise. Never blocks on a FIFO or reads a device.
-    ``missing_ok``: None when no such name exists (a dangling symlink is an error).
-    ``scratch``: the file is read into this thread's scratch buffer and a memoryview of it
-    returned, valid until the next such read (fresh memory is what reading a sweep's batch
-    costs most where the system hands out pages slowly)."""
+    ``missing_ok``: None when no such name exists (a dangling symlink is an error)."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
     except FileNotFoundError:
@@ -363,10 +342,6 @@ def _read_regular(path: Path, limit: int, what: str, missing_ok: bool = False, s
         if st.st_size > limit:
             raise MeasurementError(f"{path}: {what} is {st.st_size} bytes, more than the {limit} "
                                    f"a measurement may have")
-        if scratch:
-            got = _read_into_scratch(fd, st.st_size)
-            if got is not None:
-                return got
         # one read when the size is as stat said: a regular file reads short only at its end
         first = os.read(fd, st.st_size + 1)
         if len(first) <= st.st_size:
@@ -389,8 +364,7 @@ def _read_regular(path: Path, limit: int, what: str, missing_ok: bool = False, s
         os.close(fd)
 
 
-def _decode(path: Path, raw, what: str) -> str:
-    raw = raw if isinstance(raw, bytes) else bytes(raw)
+def _decode(path: Path, raw: bytes, what: str) -> str:
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -452,20 +426,50 @@ def _parse_rows(path: Path, text: str, columns: int = 3, names: str = "",
     return np.array(rows)
 
 
+_PLAIN_BYTES = b"0123456789+-.eE,\n"   # all a plain file holds (what leglib writes)
+
+
+def _parse_plain(raw: bytes, columns: int, increasing_first: bool, angle_columns) -> np.ndarray | None:
+    """numpy's reading (``np.loadtxt``) of a plain file, or None for the careful reader.
+
+    A plain file holds only the bytes of :data:`_PLAIN_BYTES` and no line longer than
+    :data:`MAX_LINE_CHARS`. On those bytes the grammar of a number is Python's ``float``
+    (its other spellings need letters, ``_`` or white space) and loadtxt converts as
+    ``float`` does, so it refuses a field exactly where :func:`_parse_rows` would; empty
+    lines are skipped by both. None also where the numbers break a rule (columns, NaN or
+    infinity, an angle beyond the limit, time not increasing, no row): the careful
+    reader then words the error.
+    """
+    if raw.translate(None, _PLAIN_BYTES):
+        return None
+    ends = np.flatnonzero(np.frombuffer(raw, np.uint8) == 10)
+    if ends.size == len(raw):   # nothing but newlines
+        return None
+    starts = np.concatenate(([-1], ends))
+    if np.diff(starts).max(initial=0) > MAX_LINE_CHARS + 1 or len(raw) - 1 - starts[-1] > MAX_LINE_CHARS:
+        return None
+    try:
+        data = np.loadtxt(io.BytesIO(raw), delimiter=",", comments=None, ndmin=2, dtype=float)
+    except ValueError:
+        return None
+    if data.shape[1] != columns or not data.size or not np.isfinite(data).all():
+        return None
+    if angle_columns and np.abs(data[:, list(angle_columns)]).max() > ANGLE_LIMIT_DEG:
+        return None
+    if increasing_first and not (np.diff(data[:, 0]) > 0).all():
+        return None
+    return data
+
+
 def _parse_csv(path: Path, raw: bytes, what: str, columns: int = 3, names: str = "",
                increasing_first: bool = False, angle_columns=()) -> np.ndarray:
-    """:func:`_parse_rows` of the UTF-8 text ``raw``, the same numbers and the same errors.
-
-    Three-column files go through the compiled parser first (:func:`leglib.files.csvcodec.parse3`,
-    one pass over the bytes, bit for bit as ``float()``); whatever it does not accept --
-    a bad file, or one it cannot be sure of -- is decoded and parsed row by row here,
-    which reads it or raises the error naming file and line."""
-    if columns == 3 and tuple(angle_columns) in ((), (1, 2)):
-
-        data = csvcodec.parse3(raw, MAX_LINE_CHARS, ANGLE_LIMIT_DEG if angle_columns else math.inf,
-                               increasing_first)
-        if data is not None:
-            return data
+    """:func:`_parse_rows` of the UTF-8 text ``raw``, the same numbers and the same errors:
+    a plain file (what leglib writes) is read by numpy (:func:`_parse_plain`); any other,
+    and one that breaks a rule, row by row, which reads it or raises the error naming
+    file and line."""
+    data = _parse_plain(raw, columns, increasing_first, angle_columns)
+    if data is not None:
+        return data
     return _parse_rows(path, _decode(path, raw, what), columns, names, increasing_first, angle_columns)
 
 
@@ -483,8 +487,6 @@ def _json_default(o):
     if isinstance(o, np.ndarray):
         return o.tolist()
     raise TypeError(f"not JSON serializable: {type(o).__name__}")
-_COMPACT = json.JSONEncoder(sort_keys=True, default=_json_default)
-_INDENTED = json.JSONEncoder(indent=2, sort_keys=True, default=_json_default)
 
 
 def _is_number(v) -> bool:
@@ -676,7 +678,7 @@ def read_batch(path: str | Path) -> list[Measurement]:
     path = Path(path)
     if not is_batch_name(path):
         raise MeasurementError(f"{path}: not a batch file name (expected YYYYmmdd_HHMMSS_lg<12 hex>_batch.csv)")
-    raw = _read_regular(path, MAX_BATCH_CSV_BYTES, "batch file", scratch=True)   # (not kept)
+    raw = _read_regular(path, MAX_BATCH_CSV_BYTES, "batch file")
     data = _parse_csv(path, raw, "batch file", 3, "(time, angle1, angle2)", angle_columns=(1, 2))
     side = sidecar_path(path)
     side_raw = _read_regular(side, MAX_BATCH_SIDECAR_BYTES, "sidecar", missing_ok=True)

@@ -288,11 +288,7 @@ def test_claims_are_exclusive_and_released(tmp_path):
     assert claim(tmp_path, (1.0, 2.0, 3.0)) is not None
 
 
-@pytest.mark.parametrize("ofd", [True, False], ids=["one lock file", "a lock file per point"])
-def test_many_claims_at_once_take_the_free_points_up_to_a_limit(tmp_path, monkeypatch, ofd):
-    if ofd and sys.platform != "linux":
-        pytest.skip("open-file-description locks are Linux's")
-    monkeypatch.setattr(claims, "_use_ofd", lambda: ofd)
+def test_many_claims_at_once_take_the_free_points_up_to_a_limit(tmp_path):
     keys = [(float(i), 0.05, 0.01) for i in range(10)]
     other = claim(tmp_path, keys[3])
     held, taken = claim_many(tmp_path, keys, limit=6)
@@ -322,11 +318,74 @@ def test_a_claim_held_by_another_process_is_refused_until_it_ends(tmp_path):
     assert claim(tmp_path, (4.0, 5.0, 6.0)) is not None   # its process gone: released
 
 
-@pytest.mark.skipif(sys.platform != "linux", reason="open-file-description locks are Linux's")
 def test_claims_of_a_sweep_share_one_lock_file(tmp_path):
     held = [claim(tmp_path, (float(i), 0.05, 0.01)) for i in range(50)]
     assert all(c is not None for c in held)
     assert [p.name for p in tmp_path.rglob("*")] == [CLAIMS_FILE]
+
+
+_HOLDER = ("import sys, time; from leglib.files.claims import claim; "
+           "cs = [claim(sys.argv[1], (4.0, 5.0, float(g))) for g in sys.argv[2:]]; "
+           "print(' '.join('held' if c else 'refused' for c in cs), flush=True); "
+           "line = sys.stdin.readline(); cs[0].release(); print('released', flush=True); time.sleep(60)")
+
+
+def _holder(tmp_path, *gains):
+    import subprocess
+    return subprocess.Popen([sys.executable, "-c", _HOLDER, str(tmp_path), *map(str, gains)],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+
+
+def test_releasing_one_claim_keeps_the_others_of_its_process(tmp_path):
+    """Record locks belong to the process and closing a file drops them all: a released
+    claim must leave the process's other claims in the directory held."""
+    proc = _holder(tmp_path, 6.0, 7.0)
+    try:
+        assert proc.stdout.readline().split() == ["held", "held"]
+        assert claim(tmp_path, (4.0, 5.0, 6.0)) is None and claim(tmp_path, (4.0, 5.0, 7.0)) is None
+        proc.stdin.write("go\n")
+        proc.stdin.flush()
+        assert proc.stdout.readline().strip() == "released"
+        assert claim(tmp_path, (4.0, 5.0, 7.0)) is None   # still held by its living process
+        c = claim(tmp_path, (4.0, 5.0, 6.0))
+        assert c is not None
+        c.release()
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def test_a_waiting_claim_gets_the_point_when_its_holder_releases_it(tmp_path):
+    import time
+    proc = _holder(tmp_path, 6.0)
+    try:
+        assert proc.stdout.readline().split() == ["held"]
+        assert claim(tmp_path, (4.0, 5.0, 6.0)) is None
+        proc.stdin.write("go\n")
+        proc.stdin.flush()
+        t0 = time.monotonic()
+        c = claim(tmp_path, (4.0, 5.0, 6.0), wait=True)
+        assert c is not None and time.monotonic() - t0 < 30 and proc.poll() is None
+        c.release()
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def test_claims_of_one_process_exclude_each_other_across_threads(tmp_path):
+    from concurrent.futures import ThreadPoolExecutor
+    keys = [(float(i), 0.05, 0.01) for i in range(40)]
+    with ThreadPoolExecutor(4) as pool:
+        results = list(pool.map(lambda k: claim_many(tmp_path, keys), range(8)))
+    taken = np.array([t for _, t in results])
+    assert (taken.sum(axis=0) == 1).all()   # each point taken by exactly one claim
+    for held, _ in results:
+        held.release()
+    again, t = claim_many(tmp_path, keys)
+    assert all(t)
+    again.release()
+    st = os.stat(tmp_path / CLAIMS_FILE)
+    assert (st.st_dev, st.st_ino) not in claims._OPEN   # the lock file closed with its last claim
 
 
 def test_cached_result_from_another_leg_is_refused(tmp_path):

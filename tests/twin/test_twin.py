@@ -321,7 +321,7 @@ def test_a_vectorized_block_gives_the_leg_by_leg_numbers():
 
 
 def test_leg_seeds_are_numpys_seed_sequence_for_every_leg():
-    """seeds_for mixes all legs' words at once; each state is SeedSequence's for that leg."""
+    """Each leg's state is SeedSequence's for that leg's words, whatever the batch."""
     rng = np.random.default_rng(0)
 
     def one_by_one(seed, keys):

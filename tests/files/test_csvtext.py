@@ -1,10 +1,12 @@
-"""Fast measurement files: the compiled CSV codec gives Python's numbers and text bit for
-bit and leaves every error to the careful reader; sidecar text as json.dumps; a twin
+"""Measurement files in numpy and json: the CSV text is Python's ``.6f`` to the byte (the
+files leglib wrote before, and their SHA-256s); numpy's reading gives ``float``'s numbers bit
+for bit and leaves every error to the careful reader; sidecar text is json.dumps; a twin
 sweep's batch file flushed once; a sweep read back and mapped exactly as one by one."""
 
 import json
 import os
 import stat
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,13 +14,14 @@ import pytest
 import leglib as lg
 from leglib.design.points import identify_response
 from leglib.experiments.step import StepResponse
-from leglib.files import csvcodec
+from leglib.files import measurements
 from leglib.files.measurements import (
     _ROW_RE,
     MeasurementError,
     _csv_bytes,
     _json_default,
-    _json_text,
+    _parse_plain,
+    _sidecar_text,
     read_file,
     read_measurement,
     write_measurement,
@@ -52,50 +55,102 @@ def _tables():
 
 def test_csv_text_is_pythons_to_the_byte():
     for data in _tables():
-        assert bytes(_csv_bytes(data)) == _python_csv(data)
-        for row in data:  # the compiled formatter alone, where it formats
-            got = csvcodec.format_fixed6(row[None])
-            assert got is None or got == _python_csv(row[None])
-    assert bytes(_csv_bytes(np.zeros((0, 3)))) == b""
+        assert _csv_bytes(data) == _python_csv(data)
+        for row in data[:300]:  # each row alone: its own widths, its own near-ties
+            assert _csv_bytes(row[None]) == _python_csv(row[None])
+    assert _csv_bytes(np.zeros((0, 3))) == b""
+    rng = np.random.default_rng(5)   # other column counts, every integer width
+    for c in (1, 2, 5):
+        data = rng.normal(0, 1, (500, c)) * 10.0 ** rng.integers(-7, 10, (500, c))
+        assert _csv_bytes(data) == _python_csv(data)
 
 
-def test_a_large_table_is_formatted_and_parsed_in_parts_as_in_one(monkeypatch):
-    """Text of 1 MB and more is split among the cores, in whole lines; its rows are the
-    same, and the checks hold across the seams (time increasing, a bad line anywhere)."""
+def test_csv_text_of_values_next_to_a_half_millionth_is_pythons():
+    """Values within a few ulps of the ties of .6f, where the scaled product's rounding
+    could decide: each is written as Python writes it."""
+    rng = np.random.default_rng(9)
+    ties = (rng.integers(-4 * 10 ** 9, 4 * 10 ** 9, 20000) + 0.5) / 1e6
+    near = np.concatenate([np.nextafter(ties, np.inf), ties, np.nextafter(ties, -np.inf),
+                           np.nextafter(np.nextafter(ties, np.inf), np.inf)])
+    data = near.reshape(-1, 4)
+    assert _csv_bytes(data) == _python_csv(data)
+
+
+WRITTEN_BEFORE = Path(__file__).with_name("written_before")   # by leglib's compiled codec (7cd60a7)
+
+
+def _written_before_series():
+    """The numbers of the files in written_before/, as they were made."""
+    rng = np.random.default_rng(20261201)
+
+    def run(n):
+        t = np.arange(n) * 0.002
+        return t, 267 + np.cumsum(rng.normal(0, 0.3, n)), 273 - np.cumsum(rng.normal(0, 0.3, n))
+    single = run(200)
+    series = []
+    for k, g in enumerate([(20.0, 0.002, 0.002), (30.0, 0.0217, 0.0107), (50.0, 0.18, 0.08)]):
+        series.append((*run(100 + 10 * k), g, {"completed": k != 1,
+                                                "abort_reason": None if k != 1 else "position bound"}))
+    return single, series
+
+
+def test_the_files_leglib_wrote_before_read_and_keep_their_bytes_and_hashes(tmp_path):
+    """A format-2 measurement and a format-3 batch written by the compiled codec (and
+    its hand-laid sidecars): read as before, and the same numbers written now give the
+    same bytes, so the sidecars' SHA-256s still match."""
+    import hashlib
+    single, series = _written_before_series()
+    (p,) = WRITTEN_BEFORE.glob("*_positions.csv")
+    (b,) = WRITTEN_BEFORE.glob("*_batch.csv")
+    for path, tables in ((p, [single]), (b, [s[:3] for s in series])):
+        raw = path.read_bytes()
+        meta = json.loads(path.with_suffix(".json").read_text())
+        assert meta["format"] == (2 if path == p else 3)
+        assert _csv_bytes(np.concatenate([np.column_stack(x) for x in tables])) == raw
+        assert meta["csv_sha256"] == hashlib.sha256(raw).hexdigest()
+        ms = read_file(path)
+        assert _bits(np.concatenate([np.column_stack([m.t, m.angle1, m.angle2]) for m in ms])) == _bits(_python_rows(raw))
+    ms = lg.read_measurements(WRITTEN_BEFORE).measurements
+    assert [m.gains for m in ms] == [(50.0, 0.046, 0.001)] + [s[3] for s in series]
+    assert [m.stable for m in ms] == [True, True, False, True]
+    assert ms[2].meta["abort_reason"] == "position bound" and ms[1].meta["twin_seed"] == 11
+    # written again now: the same CSV bytes
+    new_single = write_measurement(tmp_path, *single, {"completed": True}, gains=(50.0, 0.046, 0.001))
+    assert new_single.read_bytes() == p.read_bytes()
+    assert measurements.write_batch(tmp_path, series, {}).read_bytes() == b.read_bytes()
+
+
+def test_a_large_table_round_trips_exactly():
+    """120,000 rows (a batch's size): the text is Python's, numpy reads float's numbers,
+    and the checks hold anywhere in it (time increasing, a bad line at the end)."""
     rng = np.random.default_rng(3)
     n = 120_000
     data = np.column_stack([np.arange(n) * 0.002, 267 + rng.normal(0, 20, n), 273 + rng.normal(0, 20, n)])
-    monkeypatch.setattr(csvcodec, "get_num_threads", lambda: 4)
-    raw = csvcodec.format_fixed6(data)
+    raw = _csv_bytes(data)
     assert raw == _python_csv(data)
-    parsed = csvcodec.parse3(raw, 512, 3600.0, increasing=True)
+    parsed = _parse_plain(raw, 3, True, (1, 2))
     assert _bits(parsed) == _bits(_python_rows(raw))
-    # the rows where the parts meet (as parse3 cuts: after the newline following each quarter)
-    seams = [raw[:raw.find(b"\n", len(raw) * p // 4) + 1].count(b"\n") for p in (1, 2, 3)]
-    for row in seams + [n - 1]:
+    for row in (1, n // 4, n // 2, n - 1):
         bad = data.copy()
         bad[row, 0] = bad[row - 1, 0]   # time stands still there
         text = _python_csv(bad)
-        assert csvcodec.parse3(text, 512, 3600.0, increasing=True) is None
-        assert _bits(csvcodec.parse3(text, 512, 3600.0)) == _bits(_python_rows(text))
+        assert _parse_plain(text, 3, True, (1, 2)) is None
+        assert _bits(_parse_plain(text, 3, False, (1, 2))) == _bits(_python_rows(text))
         lines = raw.split(b"\n")
         lines[row] = lines[row].replace(b",", b";", 1)
-        assert csvcodec.parse3(b"\n".join(lines), 512) is None
-    monkeypatch.setattr(csvcodec, "PARALLEL_BYTES", 1 << 40)   # one part
-    assert csvcodec.format_fixed6(data) == raw
-    assert _bits(csvcodec.parse3(raw, 512, 3600.0, increasing=True)) == _bits(parsed)
+        assert _parse_plain(b"\n".join(lines), 3, False, ()) is None
 
 
-def test_compiled_parser_reads_as_float_does():
+def test_numpys_reading_is_floats():
     rng = np.random.default_rng(8)
     for data in _tables():
         finite = data[np.all(np.isfinite(data), axis=1)]
         for raw in (_python_csv(finite),
                     "".join(",".join(repr(float(v)) for v in row) + "\n" for row in finite).encode()):
-            got = csvcodec.parse3(raw, 10 ** 6)
+            got = _parse_plain(raw, 3, False, ())
             if got is not None:
                 assert _bits(got) == _bits(_python_rows(raw))
-    # random decimal spellings: whatever the fast path accepts, it reads exactly
+    # random decimal spellings: whatever the plain reader accepts, it reads exactly
     accepted = 0
     for _ in range(20000):
         fields = []
@@ -105,7 +160,7 @@ def test_compiled_parser_reads_as_float_does():
             exp = f"e{int(rng.integers(-30, 30))}" if rng.random() < 0.3 else ""
             fields.append(f"{rng.choice(['', '-', '+'])}{digits[:cut]}.{digits[cut:]}{exp}")
         line = ",".join(fields)
-        got = csvcodec.parse3((line + "\n").encode(), 512)
+        got = _parse_plain((line + "\n").encode(), 3, False, ())
         if got is not None:
             accepted += 1
             assert _bits(got[0]) == _bits([float(f) for f in fields]), line
@@ -117,8 +172,8 @@ def test_compiled_parser_reads_as_float_does():
     "nan,1,2", "inf,1,2", "1_0,2,3", "\u0661,2,3", "0x1,2,3", "+1,-2,+3", "1 2,3,4", "1,,2", ",1,2",
     "1,2,3\r ", "1,2,3\x0b", "\x0b1,2,3", "--1,2,3", "1.2.3,4,5", "1E-3,2,3", "00012,0.0,-0", "1,2,3e999",
     "1,2,1e-400", "\u00a01,2,3", "1,2,3\x00"])
-def test_compiled_parser_accepts_no_row_the_reader_refuses(line):
-    got = csvcodec.parse3((line + "\n").encode(), 512)
+def test_numpys_reading_accepts_no_row_the_reader_refuses(line):
+    got = _parse_plain((line + "\n").encode(), 3, False, ())
     if got is not None:
         assert _ROW_RE.match(line)
         assert _bits(got[0]) == _bits([float(x) for x in line.split(",")])
@@ -157,7 +212,7 @@ def test_errors_and_numbers_do_not_depend_on_the_fast_path(tmp_path, monkeypatch
         return "read", (_bits(m.t), _bits(m.angle1), _bits(m.angle2))
 
     fast = outcome(tmp_path / "fast")
-    monkeypatch.setattr(csvcodec, "parse3", lambda *a, **k: None)  # the careful parser only
+    monkeypatch.setattr(measurements, "_parse_plain", lambda *a, **k: None)  # the careful parser only
     assert outcome(tmp_path / "slow") == fast
 
 
@@ -166,9 +221,8 @@ def test_sidecar_text_is_json_dumps():
     docs = [{"b": [1, [2, {}], {"z": 1.5, "a": None}], "a": "x\ny", "c": {}, "d": [], "e": float("nan"),
              "f": True, "g": (1, 2), "h": np.float64(1 / 3), "u": "\u00e9", "v": {"n": np.int64(3), "w": np.arange(2)}},
             {"x": np.arange(3)}, {"x": np.bool_(True)}, {1: 2}, [1, 2], {}, {"k": rng.normal(size=5).tolist()}]
-    for doc in docs * 2:  # the second time from the remembered layouts
-        assert _json_text(doc) == json.dumps(doc, indent=2, sort_keys=True,
-                                                    default=_json_default).encode()
+    for doc in docs:
+        assert _sidecar_text(doc) == json.dumps(doc, indent=2, sort_keys=True, default=_json_default).encode()
 
 
 @pytest.fixture(scope="module")
