@@ -39,14 +39,32 @@ from .session import (
 )
 
 
+# written into axis0's input_pos before a save: volatile (0 after a boot) and unused while the
+# axis is IDLE (entering closed loop sets input_pos := pos_estimate, controller.cpp:115-128),
+# so still reading it after the save means the board did not reboot
+_REBOOT_MARKER = 1234.5
+
+
 def _save_and_reconnect(dev: Device, timeout: float = 10.0) -> None:
-    """``save_configuration()`` the firmware's way: axes idle first; on 0.5.2+ the board
-    refuses while armed and reboots otherwise (main.cpp:159-184), so the connection is
-    re-made by serial number. Calibration is lost by the reboot (unless pre-calibrated)."""
+    """``save_configuration()`` the firmware's way, confirmed: axes idle first; on 0.5.2+ the
+    board refuses while armed and otherwise writes flash and reboots (main.cpp:159-184), so
+    the connection is re-made by serial number and the save counts only once the board is
+    seen to have rebooted: a volatile value written before the save (axis0's input_pos, which
+    a boot clears) is gone. A link lost
+    at the save is no reboot: that raises, saying what state the board is in. Calibration is
+    lost by the reboot (unless pre-calibrated).
+
+    Raises
+    ------
+    ExperimentError
+        The board refused (an armed motor), did not come back, or did not reboot.
+    """
     dev.__dict__["serial_number_at_connect"] = int(dev.raw.serial_number)
     dev.idle_all()
     wait_states(dev, (0, 1), AXIS_STATE_IDLE, what="going IDLE before saving")
     reboots = has_system_error(dev)
+    if reboots:
+        dev.set(0, "input_pos", _REBOOT_MARKER)
     try:
         ok = dev.raw.save_configuration()
     except Exception as exc:  # noqa: BLE001 - the board resets before it answers
@@ -57,13 +75,23 @@ def _save_and_reconnect(dev: Device, timeout: float = 10.0) -> None:
         lost = None
         if ok is False:
             raise ExperimentError("save_configuration refused: a motor is armed (set both axes IDLE first)")
-    if reboots:
-        try:
-            dev.rebind(_reconnect(dev, timeout))
-        except Exception as exc:
-            raise ExperimentError(f"the ODrive rebooted after save_configuration ({lost!r}) and did not "
-                                  f"come back within {timeout:g} s: {exc}") from exc
-        dev.axes = dev.axes.zeroed((0.0, 0.0))  # the counts restarted: the old zero is void
+    if not reboots:
+        return
+    try:
+        dev.rebind(_reconnect(dev, timeout))
+    except Exception as exc:
+        raise ExperimentError(f"save_configuration ({lost!r}) was not confirmed: the ODrive did not come back "
+                              f"within {timeout:g} s ({exc}); whether it saved is unknown. Power-cycle it, "
+                              f"reconnect and check its configuration (configure reads every value back)") from exc
+    marker = float(dev.get(0, "input_pos"))
+    if marker == _REBOOT_MARKER:
+        dev.set(0, "input_pos", 0.0)
+        raise ExperimentError(
+            f"save_configuration was not confirmed: the board did not reboot (a value a boot clears is still "
+            f"there; the call ended with {lost!r}), so nothing was saved to flash: the new values are in its "
+            f"RAM only, and the brake resistor, if newly enabled, is not armed. Check the USB link, then "
+            f"configure (or apply_gains) again")
+    dev.axes = dev.axes.zeroed((0.0, 0.0))  # the counts restarted: the old zero is void
 
 
 def configure(dev: Device, config: OdriveConfig | None = None, save: bool = True) -> dict:

@@ -30,10 +30,10 @@ from ..device.session import (
 )
 from ..errors import ExperimentError
 from ..files.measurements import (
+    csv_bytes,
+    read_companion,
     read_measurement,
-    read_table,
     write_measurement,
-    write_table,
 )
 
 
@@ -85,34 +85,38 @@ class TorqueRun:
         return y
 
     def write(self, out_dir, when=None) -> Path:
-        """Write as Listing 7.3 did: ``<stamp>_positions.csv`` (time, q1, q2 [deg]) with a
-        JSON sidecar, and ``<stamp>_torque.csv`` (time, tau1, tau2 [N*m]) of the table."""
+        """Write as Listing 7.3 did, as one committed unit: ``<stamp>_positions.csv`` (time,
+        q1, q2 [deg]) with its JSON sidecar, and ``<stamp>_torque.csv`` (time, tau1, tau2
+        [N*m]) of the table, a companion the sidecar commits by its SHA-256 (written before
+        the positions file, whose appearance is the commit: an interrupted or failed write
+        leaves no measurement that :meth:`read` cannot read)."""
         meta = {"experiment": "torque_playback", "period_s": self.period, "rate_hz": self.rate_hz,
                 **self.meta}
         for name in ("t_cmd", "t_read"):
             value = getattr(self, name)
             if value is not None:
                 meta[name] = np.round(value, 7).tolist()
-        path = write_measurement(out_dir, self.t, np.degrees(self.q1), np.degrees(self.q2),
-                                        meta, when=when)
+        companions = None
         if self.table is not None:
             tt = self.period * np.arange(len(self.table))
-            write_table(path.with_name(path.name.replace("_positions.csv", "_torque.csv")),
-                               np.column_stack([tt, self.table]))
-        return path
+            companions = {TORQUE_SUFFIX: csv_bytes(np.column_stack([tt, self.table]))}
+        return write_measurement(out_dir, self.t, np.degrees(self.q1), np.degrees(self.q2), meta, when=when,
+                                 companions=companions)
 
     @classmethod
     def read(cls, path) -> "TorqueRun":
         """Read a torque run written by :meth:`write` (positions, sidecar and table)."""
         m = read_measurement(path)
-        table_path = Path(path).with_name(Path(path).name.replace("_positions.csv", "_torque.csv"))
-        table = read_table(table_path, columns=3)
+        table = read_companion(path, TORQUE_SUFFIX, m.meta, columns=3)
         period = float(m.meta.get("period_s", table[1, 0] - table[0, 0]))
         rows = np.minimum((m.t / period).astype(int), len(table) - 1)
         extra = {k: np.asarray(m.meta[k]) for k in ("t_cmd", "t_read") if k in m.meta}
         return cls(t=m.t, q1=np.radians(m.angle1), q2=np.radians(m.angle2), tau=table[rows, 1:],
                    iq=np.full((m.t.size, 2), np.nan), rate_hz=float(m.meta.get("rate_hz", np.nan)),
                    meta=m.meta, table=table[:, 1:], period=period, **extra)
+
+
+TORQUE_SUFFIX = "_torque.csv"   # a torque run's table, beside its positions file
 
 
 def torque_loop(odrv, policy, duration: float, period: float | None = None,

@@ -93,7 +93,14 @@ def write_bytes_atomic(path: str | Path, data: bytes, overwrite: bool = False) -
     """Write ``data`` to ``path`` via a temporary file: the name shows a complete file or
     none. ``overwrite=False`` raises FileExistsError rather than replace a file."""
     path = Path(path)
-    tmp = _write_temp(path.parent, path.name, data)
+    try:
+        tmp = _write_temp(path.parent, path.name, data)
+    except FileNotFoundError:
+        raise
+    except OSError as exc:   # a full or read-only disk, no permission: say which file
+        if exc.filename is not None and str(path) in str(exc):
+            raise
+        raise type(exc)(exc.errno, f"writing {path}: {exc.strerror or exc}", str(path)) from exc
     try:
         if overwrite:
             os.replace(tmp, path)

@@ -177,8 +177,9 @@ def _csv_bytes(data) -> bytes:
 
 
 def write_measurement(out_dir: str | Path, t, angle1_deg, angle2_deg, meta: dict,
-                      gains=None, when: _dt.datetime | None = None) -> Path:
-    """Write one measurement (sidecar, then the CSV as the commit); returns the CSV path.
+                      gains=None, when: _dt.datetime | None = None, companions: dict | None = None) -> Path:
+    """Write one measurement (sidecar, companions, then the CSV as the commit); returns the
+    CSV path.
 
     Parameters
     ----------
@@ -188,10 +189,15 @@ def write_measurement(out_dir: str | Path, t, angle1_deg, angle2_deg, meta: dict
     meta : extra sidecar fields (JSON-serializable); ``completed`` must be a bool if given
     gains : (pos_gain, vel_gain, vel_integrator_gain) or None
     when : time stamp of the name (default now)
+    companions : {suffix: bytes}, optional
+        Files that belong to the measurement (a torque run's table: ``{"_torque.csv": ...}``),
+        named ``<stem><suffix>``: written after the sidecar, which holds their SHA-256s
+        (``companions``), and before the commit, so they are part of the one unit.
 
     The name carries the exact gains and a random part, so it never collides with another
     writer's; an interruption at any point leaves either the whole measurement or an
-    uncommitted sidecar/temporary file that readers ignore (see the module notes).
+    uncommitted sidecar/companion/temporary file that readers ignore and a resumed sweep
+    sets aside (see the module notes).
     """
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
@@ -213,11 +219,15 @@ def write_measurement(out_dir: str | Path, t, angle1_deg, angle2_deg, meta: dict
                    "format": FORMAT, "columns": COLUMNS, "angles": "absolute",
                    "gains": None if gains is None else [float(g) for g in gains],
                    "samples": int(t.size), "csv_sha256": hashlib.sha256(body).hexdigest()}
+        if companions:
+            sidecar["companions"] = {sfx: hashlib.sha256(data).hexdigest() for sfx, data in companions.items()}
         text = _sidecar_text(sidecar)
         try:
             write_bytes_atomic(side, text)
         except FileExistsError:
             continue  # the random part collided: draw another
+        for sfx, data in (companions or {}).items():
+            write_bytes_atomic(companion_path(path, sfx), data)
         write_bytes_atomic(path, body)  # the commit
         return path
     raise FileExistsError(f"{out_dir}: could not find a free measurement name")
@@ -311,6 +321,36 @@ def _sidecar_text(sidecar: dict) -> bytes:
     """A sidecar's text: ``json.dumps`` with sorted keys, indented by two (numpy values as
     Python's)."""
     return json.dumps(sidecar, indent=2, sort_keys=True, default=_json_default).encode()
+
+
+def companion_path(path: str | Path, suffix: str) -> Path:
+    """The companion file ``suffix`` (e.g. ``"_torque.csv"``) of measurement ``path``."""
+    path = Path(path)
+    return path.with_name(path.name.replace("_positions.csv", suffix))
+
+
+def read_companion(path: str | Path, suffix: str, meta: dict, columns: int) -> np.ndarray:
+    """A measurement's companion table, checked against the SHA-256 its sidecar holds
+    (``meta["companions"]``); a companion the sidecar does not list is read as it is (files
+    written before companions were hashed).
+
+    Raises
+    ------
+    MeasurementError
+        The file is missing, malformed, or not the one the sidecar committed.
+    """
+    file = companion_path(path, suffix)
+    raw = _read_regular(file, MAX_CSV_BYTES, "file")
+    want = (meta.get("companions") or {}).get(suffix)
+    if want is not None and hashlib.sha256(raw).hexdigest() != want:
+        raise MeasurementError(f"{file}: its SHA-256 differs from the one {sidecar_path(path).name} committed "
+                               f"(companions.{suffix}): not this measurement's file")
+    return _parse_csv(file, raw, "file", columns)
+
+
+def csv_bytes(data) -> bytes:
+    """A numeric table as leglib writes it (six decimals, comma-separated)."""
+    return _csv_bytes(np.asarray(data, dtype=float))
 
 
 def write_table(path: str | Path, data) -> Path:
@@ -520,6 +560,10 @@ def _check_fields(side: Path, meta, prefix: str = "") -> None:
             raise _bad_field(side, meta, key, "a finite number", prefix)
     if "abort_reason" in meta and not (meta["abort_reason"] is None or isinstance(meta["abort_reason"], str)):
         raise _bad_field(side, meta, "abort_reason", "a string or null", prefix)
+    companions = meta.get("companions")
+    if companions is not None and not (isinstance(companions, dict) and all(
+            isinstance(k, str) and k.startswith("_") and isinstance(v, str) and len(v) == 64 for k, v in companions.items())):
+        raise _bad_field(side, meta, "companions", "an object of '_<suffix>': SHA-256 hex", prefix)
 
 
 def _check_contents(side: Path, meta: dict, csv: Path, raw: bytes, n: int, required: bool) -> None:

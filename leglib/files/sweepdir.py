@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import secrets
 import warnings
 from dataclasses import dataclass
@@ -126,13 +127,22 @@ def read_measurements(paths_or_dir, strict: bool = True) -> DirectoryRead:
 
 def find_uncommitted(directory: str | Path) -> list[Path]:
     """Leftovers of interrupted format-2 writes in ``directory``: sidecars whose CSV never
-    appeared and hidden temporary files. (A concurrent writer's in-flight files look the
+    appeared, companion files (a torque run's table) of a measurement never committed, and
+    hidden temporary files. (A concurrent writer's in-flight files look the
     same: hold the point's :func:`claim` before removing them.)"""
     d = _directory(directory)
     found = [p for pattern, name_re in (("*_positions.json", _UID_RE), ("*_batch.json", _BATCH_SIDE_RE))
              for p in d.glob(pattern) if name_re.search(p.name) and not os.path.lexists(p.with_suffix(".csv"))]
-    found += [p for p in d.glob(".*.tmp") if "_positions." in p.name or "_batch." in p.name]
+    # a measurement's companions (a torque run's table) whose commit never came
+    found += [p for p in d.glob("*_lg*_*.csv") if _COMPANION_RE.search(p.name)
+              and not os.path.lexists(p.with_name(_COMPANION_RE.sub(r"\1_positions.csv", p.name)))]
+    found += [p for p in d.glob(".*.tmp") if "_positions." in p.name or "_batch." in p.name or
+              _COMPANION_RE.search(p.name.lstrip(".").rsplit(".", 2)[0])]
     return sorted(found)
+
+
+# a companion of a leglib measurement: <stem>_lg<12 hex>_<suffix>.csv other than the positions
+_COMPANION_RE = re.compile(r"(_lg[0-9a-f]{12})_(?!positions\.csv$|batch\.csv$)[a-z]+\.csv$", re.ASCII)
 
 
 def uncommitted_claim_key(path: Path):

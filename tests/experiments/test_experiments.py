@@ -441,3 +441,35 @@ def test_the_step_path_is_a_named_choice(dev):
             lg.step_response(dev, *STABLE, path="batched")
     finally:
         dev.sim.set_realtime(False)
+
+
+def test_a_torque_run_is_one_committed_unit(dev, tmp_path, monkeypatch):
+    """TorqueRun.write commits the positions file last: a full disk at the torque table leaves
+    no measurement in the directory (only leftovers a resumed sweep sets aside), and a table
+    that is not the one the sidecar committed is refused."""
+    import errno
+
+    from leglib.experiments.torque import TorqueRun
+    from leglib.files import measurements
+    from leglib.files.sweepdir import find_uncommitted
+    from leglib.errors import MeasurementError
+    run = lg.play_torque_table(dev, np.full((30, 2), 0.01))
+    real = measurements.write_bytes_atomic
+
+    def full(path, data, **kw):
+        if str(path).endswith("_torque.csv"):
+            raise OSError(errno.ENOSPC, f"{path}: No space left on device")
+        return real(path, data, **kw)
+    monkeypatch.setattr(measurements, "write_bytes_atomic", full)
+    with pytest.raises(OSError, match="No space left"):
+        run.write(tmp_path / "full")
+    assert list_measurements(tmp_path / "full") == [] and find_uncommitted(tmp_path / "full")
+    monkeypatch.undo()
+    path = run.write(tmp_path / "ok")
+    back = TorqueRun.read(path)
+    assert np.array_equal(back.table, np.round(run.table, 6)) and np.allclose(back.t, run.t, atol=1e-6)
+    table = path.with_name(path.name.replace("_positions.csv", "_torque.csv"))
+    table.chmod(0o644)
+    table.write_text(table.read_text().replace("0.010000", "0.020000", 1))
+    with pytest.raises(MeasurementError, match="not this measurement's file"):
+        TorqueRun.read(path)

@@ -16,6 +16,7 @@ from leglib.device.session import clear_errors
 from leglib.device.virtual import firmware as V
 from leglib.experiments import step as step_module
 from leglib.experiments.step import return_to_rest
+from leglib.errors import DeviceLostError, ExperimentError
 from leglib.twin import layout as L
 
 STABLE = (50.0, 0.046, 0.001)
@@ -26,7 +27,7 @@ OPERATIONS = {
     "return_to_rest": lambda d: return_to_rest(d, move_time=0.3, settle=0.05),
     "step_response, polled": lambda d: lg.step_response(d, *STABLE, duration=0.06, settle=0.02, path="polled"),
     "step_response, batched": lambda d: lg.step_response(d, *STABLE, duration=0.3, settle=0.02, path="batched"),
-    "sweep": lambda d: lg.sweep(d, [STABLE, (40.0, 0.05, 0.001)], d.options["_sweep_dir"](), progress=False,
+    "sweep": lambda d: lg.sweep(d, [STABLE, (40.0, 0.05, 0.001)], d.__dict__["sweep_dirs"](), progress=False,
                                 duration=0.3),
     "torque_loop": lambda d: lg.torque_loop(d, lambda t, q1, q2: (0.01, 0.01), 0.06),
     "play_torque_table": lambda d: lg.play_torque_table(d, np.full((25, 2), 0.01)),
@@ -93,7 +94,7 @@ def dev(tmp_path):
     lg.configure(d)
     lg.calibrate(d, zero=False)
     count = iter(range(10 ** 6))
-    d.options["_sweep_dir"] = lambda: tmp_path / f"sweep{next(count)}"
+    d.__dict__["sweep_dirs"] = lambda: tmp_path / f"sweep{next(count)}"
     return d
 
 
@@ -186,3 +187,29 @@ def test_a_second_interrupt_during_the_cleanup_leaves_both_axes_idle(dev, operat
             assert _idle_within(dev.sim, WATCHDOG.get(operation, 0.5)), \
                 f"armed after interrupts at {k} and {k + gap} of {n}"
             _recover(dev, operation)
+
+
+# -- a save is confirmed, or reported unconfirmed ---------------------------------------------
+
+@pytest.mark.parametrize("operation", ["configure", "apply_gains"])
+def test_a_link_lost_at_the_save_is_reported_unconfirmed(monkeypatch, operation):
+    """The link lost exactly at save_configuration: the board never rebooted and nothing was
+    saved. The operation says so (the board's state, what to do) instead of returning as if
+    it had saved: a save counts only once a value a boot clears is gone."""
+    def lost_at_save(self):
+        raise DeviceLostError("virtual ODrive: link lost at save_configuration (injected)")
+    monkeypatch.setattr(V.VirtualODrive, "_save_configuration", lost_at_save)
+    dev = lg.connect("virtual", seed=33)
+    with pytest.raises(ExperimentError, match="save_configuration was not confirmed: the board did not reboot"):
+        if operation == "configure":
+            lg.configure(dev)
+        else:
+            lg.apply_gains(dev, STABLE)
+    assert dev.sim.boot_count == 0 and dev.sim.saved_configuration is None
+
+
+def test_a_save_is_confirmed_by_the_reboot(dev):
+    uptime = int(dev.raw.system_stats.uptime)
+    assert uptime > 1000                   # the board has run for seconds (configure, calibrate)
+    lg.apply_gains(dev, STABLE)
+    assert dev.sim.boot_count == 2 and int(dev.raw.system_stats.uptime) < uptime

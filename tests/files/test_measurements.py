@@ -553,3 +553,19 @@ def test_an_unfinished_batch_is_uncommitted_and_claimed_while_written(tmp_path, 
     assert left.name.endswith("_batch.json")
     key = uncommitted_claim_key(left)
     assert key.startswith("lg") and claim(tmp_path, key) is not None   # released: the writer is gone
+
+
+def test_a_full_disk_names_the_file(tmp_path, monkeypatch):
+    """A write that fails for want of space (or permission) says which file it was writing."""
+    import errno
+
+    from leglib.files import atomic
+
+    def full(fd, data):
+        raise OSError(errno.ENOSPC, "No space left on device")
+    monkeypatch.setattr(atomic.os, "write", full)
+    target = tmp_path / "x.csv"
+    with pytest.raises(OSError, match=f"writing {target}: No space left on device") as err:
+        atomic.write_bytes_atomic(target, b"1,2,3\n")
+    assert err.value.errno == errno.ENOSPC and not target.exists()
+    assert not list(tmp_path.glob(".*.tmp"))

@@ -199,6 +199,7 @@ ENDPOINTS = (
     Endpoint("brake_resistor_armed", Attr("_brake_armed"), bool),
     Endpoint("brake_resistor_current", S(L.S_BRAKE_I), since="0.5.3"),
     Endpoint("serial_number", Get("_serial"), int),
+    Endpoint("system_stats.uptime", Get("_uptime_ms"), int),   # main.cpp:263, ms since boot
     Endpoint("fw_version_major", Const(0), int),
     Endpoint("fw_version_minor", Const(5), int),
     Endpoint("fw_version_revision", Attr("fw_revision"), int),
@@ -810,6 +811,10 @@ class VirtualODrive:
     def _phase_resistance(self, a: int) -> float:
         # the calibration's measurement (motor.cpp:416-423); 0 until the motor is calibrated
         return self.twin.motor.phase_resistance if self._axis[a]["motor_calibrated"] else 0.0
+
+    def _uptime_ms(self) -> int:
+        """system_stats.uptime: the FreeRTOS tick count (1 ms) since this boot, uint32."""
+        return int((self.time - getattr(self, "_booted_at", 0.0)) * 1000.0) & 0xFFFFFFFF
 
     def _vbus_voltage(self) -> float:
         return float(self.st.C[0, 0, L.C_VBUS]) + 0.05 * float(self._rng.standard_normal())
