@@ -463,8 +463,13 @@ def plot_design_study(rows, ax=None, limits=(0.05, 0.10)):
     and worst limits as lines."""
     ax = axes(ax)
     groups = list(dict.fromkeys(f"{r.plant}\n{r.payload:g} kg" for r in rows))
+    failed_label = True
     for i, g in enumerate(groups):
-        rs = [r for r in rows if f"{r.plant}\n{r.payload:g} kg" == g]
+        rs = [r for r in rows if f"{r.plant}\n{r.payload:g} kg" == g and r.design is not None]
+        if not rs:   # the leg could not be prepared (its reason is in the table)
+            ax.plot(i, 0.0, "x", color="tab:red", ms=9, label="not prepared (see table)" if failed_label else None)
+            failed_label = False
+            continue
         ez = [100 * abs(r.error[0]) for r in rs]
         ef = [100 * abs(r.error[1]) for r in rs]
         ax.plot(np.full(len(ez), i - 0.12), ez, "o", color="tab:blue", label="zeta" if i == 0 else None)

@@ -352,7 +352,8 @@ class DesignRow:
     payload: float
     target: tuple
     source: str            # "thesis" or the gains the target was measured at
-    design: object = field(repr=False)
+    design: object = field(repr=False)   # None when the leg could not be prepared
+    failure: str | None = None           # why there is no design (e.g. the calibration failed)
 
     @property
     def error(self) -> tuple:
@@ -380,7 +381,16 @@ def design_study(plants=None, payloads=(0.0, 0.3), n_targets: int = 4, seed: int
             k += 1
             try:
                 configure(dev)
-                calibrate(dev)
+                try:
+                    calibrate(dev)
+                except ExperimentError as exc:
+                    # a leg that does not calibrate (e.g. stick-slip under a payload moves the
+                    # scan more than calib_range from cpr / pole_pairs) is a row with its reason
+                    rows.append(DesignRow(name, float(payload), tuple(map(float, THESIS_TARGET)), "thesis",
+                                          None, f"calibration failed: {exc}"))
+                    if progress:
+                        print(f"  {name:8s} payload {payload:.2f} kg: calibration failed", flush=True)
+                    continue
                 targets = [(THESIS_TARGET, "thesis")]
                 for g in TARGET_GAINS[:n_targets]:
                     m = _measure(dev, g)
@@ -403,15 +413,43 @@ def design_summary(rows) -> dict:
     number of experiments, targets reached; and "all" over every row."""
     groups: dict = {}
     for r in rows:
-        groups.setdefault(f"{r.plant}, {r.payload:g} kg", []).append(r)
-    groups["all"] = list(rows)
+        if r.design is not None:
+            groups.setdefault(f"{r.plant}, {r.payload:g} kg", []).append(r)
+    designed = [r for r in rows if r.design is not None]
+    if designed:
+        groups["all"] = designed
     out = {}
     for key, rs in groups.items():
         e = np.abs(np.array([r.error for r in rs], float))
         out[key] = {"median": float(np.median(e)), "worst": float(np.max(e)),
                     "max_experiments": int(max(r.experiments for r in rs)),
                     "reached": int(sum(r.design.reached for r in rs)), "targets": len(rs)}
+    failed = [f"{r.plant}, {r.payload:g} kg" for r in rows if r.design is None]
+    if failed:
+        out["not prepared"] = {"legs": failed, "reasons": [r.failure for r in rows if r.design is None]}
     return out
+
+
+def design_study_markdown(rows) -> str:
+    """The rows of :func:`design_study` and their :func:`design_summary` as two Markdown
+    tables; a leg that could not be prepared is a row with its reason."""
+    lines = ["| plant | payload [kg] | target (ζ, fn [Hz]) | from | measured | error ζ, fn | experiments |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        head = f"| {r.plant} | {r.payload:g} | ({r.target[0]:.3f}, {r.target[1]:.2f}) | {r.source} | "
+        if r.design is None:
+            lines.append(head + f"— | {r.failure.replace('|', '/')} | 0 |")
+            continue
+        d = r.design
+        lines.append(head + f"({d.measured[0]:.3f}, {d.measured[1]:.2f}) | {d.error[0]:+.1%}, {d.error[1]:+.1%} | "
+                     f"{r.experiments}{'' if d.reached else ' (not reached)'} |")
+    summary = design_summary(rows)
+    lines += ["", "| plant, payload | median error | worst error | most experiments | reached |", "|---|---|---|---|---|"]
+    for k, v in summary.items():
+        if k != "not prepared":
+            lines.append(f"| {k} | {v['median']:.1%} | {v['worst']:.1%} | {v['max_experiments']} | "
+                         f"{v['reached']}/{v['targets']} |")
+    return "\n".join(lines)
 
 
 def parse_plants(text: str, name: str = "design_plants") -> list[str]:
