@@ -255,16 +255,18 @@ def _panel(page):
     return panel
 
 
-def _slider_session(browser, lab, prefix: str, label: str, value_text: str, initial: str, moved: str) -> dict:
+def _slider_session(browser, lab, prefix: str, label: str, value_text: str, expected) -> dict:
     """Run All in notebook ``prefix``; check the panel's readout shows ``initial``; move the
     slider ``label`` one step to ``value_text``; the readout must become ``moved`` and the
-    plot must be redrawn. Returns the notebook's metrics."""
+    plot must be redrawn. ``expected()`` gives ``(initial, moved)``, called once the notebook
+    has run. Returns the notebook's metrics."""
     from playwright.sync_api import expect
 
     nb = _notebook(prefix)
     page = browser.new_page(viewport={"width": 1500, "height": 1000})
     try:
         metrics = _run_all(page, lab, prefix)
+        initial, moved = expected()
         panel = _panel(page)
         expect(panel.locator("code.leglib-readout")).to_have_text(initial, timeout=30_000)
         before, after = _move_slider(page, panel, label, value_text, moved, f"{prefix}_{label.replace(' ', '_')}")
@@ -293,30 +295,73 @@ def test_pole_slider_in_notebook_03(lab, browser):
     moved = widgets.design_readout(widgets.pole_panel_design(sys_thesis, center + 0.5, spread, factor))
     assert initial != moved
 
-    metrics = _slider_session(browser, lab, "03", "pole centre", f"{center + 0.5:.1f}", initial, moved)
+    metrics = _slider_session(browser, lab, "03", "pole centre", f"{center + 0.5:.1f}", lambda: (initial, moved))
     assert metrics["eig_K_max_rel_error"] < 1e-6  # the notebook computed sensible things
 
 
-def test_gain_slider_in_notebook_04(lab, browser):
-    from leglib.notebook.setup import device_options
-    from leglib.params import load_leg
+# Notebook 04's device history before its panel: the twin lives for the kernel's process under
+# its seed and its noise goes on from one session to the next, as a real ODrive's does; so the
+# panel's steps depend on what the notebook ran before it (the sweep, the design's step). The
+# replay runs that history in a process of its own, beside the page's Run All.
+_REPLAY_04 = """
+import json, sys
+import numpy as np
+import leglib as lg
+from leglib.design import saved as designs
+from leglib.notebook import widgets
+from leglib.notebook.setup import device_options
+from leglib.params import load_leg
 
-    # the panel's device: connected, configured and calibrated as in the notebook; one step
-    # with the panel's initial gains, then one with pos_gain one slider step up
-    d = _defaults(_notebook("04"))
+a = json.loads(sys.argv[1])
+leg = load_leg(a["leg_name"])
+options = device_options("virtual", a["seed"], a["plant"], a["payload_mass"])
+grid = np.array([(p, v, i) for p in np.linspace(a["pos_min"], a["pos_max"], a["pos_n"])
+                 for v in np.linspace(a["vel_min"], a["vel_max"], a["vel_n"])
+                 for i in np.linspace(a["vint_min"], a["vint_max"], a["vint_n"])])
+with lg.connect("virtual", leg=leg, **options) as odrv:
+    lg.configure(odrv); lg.calibrate(odrv); lg.sweep(odrv, grid, a["sweep_dir"], progress=False)
+gm = lg.GainMap.from_measurements(a["sweep_dir"], leg=leg)
+start = designs.gain_design_from_map(gm, 0.24, 5.0, sweep_dir=a["sweep_dir"])
+with lg.connect("virtual", leg=leg, **options) as odrv:
+    lg.configure(odrv); lg.calibrate(odrv); lg.step_response(odrv, *start.gains)
+readouts = []
+with lg.connect("virtual", leg=leg, **options) as dev:
+    lg.configure(dev); lg.calibrate(dev)
+    for gains in a["gains"]:
+        readouts.append(widgets.step_readout(lg.step_response(dev, **gains), leg=dev.leg))
+print(json.dumps(readouts))
+"""
+
+# notebook 04's smoke grid (its check_parameters(smoke=...)); the notebook's metrics must agree
+_SMOKE_04 = {"pos_n": 2, "vel_n": 4, "vint_n": 4}
+
+
+def test_gain_slider_in_notebook_04(lab, browser, tmp_path):
+    # the panel's device after the notebook's history; one step with the panel's initial
+    # gains, then one with pos_gain one slider step up
+    d = {**_defaults(_notebook("04")), **_SMOKE_04}
     gains = _panel_defaults(widgets.gain_step_panel)
     gains.pop("gm")
-    options = device_options("virtual", d["seed"], d["plant"], d["payload_mass"])
-    with lg.connect("virtual", leg=load_leg(d["leg_name"]), **options) as dev:
-        lg.configure(dev)
-        lg.calibrate(dev)
-        initial = widgets.step_readout(lg.step_response(dev, **gains), leg=dev.leg)
-        moved = widgets.step_readout(lg.step_response(dev, **{**gains, "pos_gain": gains["pos_gain"] + 1.0}),
-                                     leg=dev.leg)
-    assert initial.startswith("zeta = ") and moved.startswith("zeta = ") and initial != moved
+    moved_gains = {**gains, "pos_gain": gains["pos_gain"] + 1.0}
+    args = {k: d[k] for k in ("leg_name", "seed", "plant", "payload_mass", "pos_min", "pos_max", "pos_n",
+                              "vel_min", "vel_max", "vel_n", "vint_min", "vint_max", "vint_n")}
+    args.update(sweep_dir=str(tmp_path / "sweep"), gains=[gains, moved_gains])
+    replay = subprocess.Popen([sys.executable, "-c", _REPLAY_04, json.dumps(args)], cwd=REPO,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
-    metrics = _slider_session(browser, lab, "04", "pos_gain", f"{gains['pos_gain'] + 1.0:.0f}", initial, moved)
-    assert metrics["points"] == 32
+    def expected():
+        out, err = replay.communicate(timeout=600)
+        assert replay.returncode == 0, f"the replay of notebook 04's device history failed:\n{err[-3000:]}"
+        initial, moved = json.loads(out.strip().splitlines()[-1])
+        assert initial.startswith("zeta = ") and moved.startswith("zeta = ") and initial != moved
+        return initial, moved
+
+    try:
+        metrics = _slider_session(browser, lab, "04", "pos_gain", f"{moved_gains['pos_gain']:.0f}", expected)
+    finally:
+        if replay.poll() is None:
+            replay.kill()
+    assert metrics["points"] == _SMOKE_04["pos_n"] * _SMOKE_04["vel_n"] * _SMOKE_04["vint_n"]
 
 
 # ---------------------------------------------------------------------------------------
