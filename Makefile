@@ -44,9 +44,12 @@ sysdeps:
 run: $(STAMP)
 	$(BIN)/python -m leglib run --out reports
 
+# pytest-xdist workers (JOBS=1: one process, as plain `pytest`); the browser tests share one
+# JupyterLab and stay on one worker (xdist_group "lab")
+JOBS ?= auto
 test: $(STAMP)
 	@$(MAKE) --no-print-directory sysdeps
-	$(HEADLESS) $(BIN)/python -m pytest -q
+	$(HEADLESS) $(BIN)/python -m pytest -q -n $(JOBS) --dist loadgroup
 
 bench: $(STAMP)
 	$(HEADLESS) $(BIN)/python -m benchmarks

@@ -38,7 +38,6 @@ from .session import (
     wait_states,
 )
 
-
 # written into axis0's input_pos before a save: volatile (0 after a boot) and unused while the
 # axis is IDLE (entering closed loop sets input_pos := pos_estimate, controller.cpp:115-128),
 # so still reading it after the save means the board did not reboot

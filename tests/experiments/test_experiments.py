@@ -449,10 +449,10 @@ def test_a_torque_run_is_one_committed_unit(dev, tmp_path, monkeypatch):
     that is not the one the sidecar committed is refused."""
     import errno
 
+    from leglib.errors import MeasurementError
     from leglib.experiments.torque import TorqueRun
     from leglib.files import measurements
     from leglib.files.sweepdir import find_uncommitted
-    from leglib.errors import MeasurementError
     run = lg.play_torque_table(dev, np.full((30, 2), 0.01))
     real = measurements.write_bytes_atomic
 

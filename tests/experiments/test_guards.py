@@ -4,6 +4,7 @@ within the watchdog time (the watchdog counts down in every state, axis.cpp:165-
 fw-v0.5.6; an expired one disarms the motor, axis.cpp:343-350)."""
 
 import _thread
+import signal
 import warnings
 
 import numpy as np
@@ -14,9 +15,9 @@ from leglib.design.statefeedback import place_poles, run_live
 from leglib.device import setup
 from leglib.device.session import clear_errors
 from leglib.device.virtual import firmware as V
+from leglib.errors import DeviceLostError, ExperimentError
 from leglib.experiments import step as step_module
 from leglib.experiments.step import return_to_rest
-from leglib.errors import DeviceLostError, ExperimentError
 from leglib.twin import layout as L
 
 STABLE = (50.0, 0.046, 0.001)
@@ -37,6 +38,16 @@ OPERATIONS = {
 # the watchdog of each operation's armed phase [s]
 WATCHDOG = {"calibrate": setup.CALIBRATION_WATCHDOG, "return_to_rest": step_module.HOLD_WATCHDOG,
             "torque_loop": 0.2, "play_torque_table": 0.2, "friction_experiment": 0.2, "run_live": 0.2}
+
+
+@pytest.fixture(autouse=True)
+def _ctrl_c_raises():
+    """Ctrl-C raises KeyboardInterrupt here, as in a terminal or a notebook kernel: a
+    pytest-xdist worker ignores SIGINT (its controller handles Ctrl-C), and
+    ``_thread.interrupt_main`` does nothing while SIGINT is ignored."""
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, old)
 
 
 class _Faults:

@@ -25,6 +25,7 @@ def cluster():
     c.close()
 
 
+@pytest.mark.notebook
 def test_six_runs_on_a_local_cluster_with_a_failure_and_a_rerun(tmp_path, cluster):
     spec = tmp_path / "spec.toml"
     spec.write_text(SPEC.format(name="demo", bad=2))  # grid_n = 2 is refused by notebook 01
