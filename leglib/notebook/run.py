@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
+import time
 import warnings
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
-from tqdm.auto import tqdm
+from .progress import StageLog, clock
 
 REPO = Path(__file__).resolve().parents[2]
 NOTEBOOK_DIR = REPO / "notebooks"
@@ -57,7 +59,8 @@ def execute(notebook: str | Path, out_dir: str | Path, parameters: dict | None =
     parameters : papermill parameters; ``figures_dir`` and ``metrics_path`` default to
         places under ``out_dir``
     html : also write the HTML beside the executed notebook
-    progress : show papermill's progress bar
+    progress : print progress lines on standard error (:class:`leglib.notebook.progress.StageLog`:
+        start, each section as the run reaches it, a heartbeat while a cell runs long, the end)
     timeout : per-cell timeout [s]: a cell that runs longer stops the run with nbclient's
         ``CellTimeoutError``, which shows the cell.
 
@@ -93,17 +96,31 @@ def execute(notebook: str | Path, out_dir: str | Path, parameters: dict | None =
     params.update(parameters or {})
     out = out_dir / notebook.name
     for attempt in (1, 2):
+        hooks, log = {}, None
+        if progress:
+            # papermill adds one cell, its injected parameters (there are always some: params)
+            cells = len(nbformat.read(str(notebook), as_version=4).cells) + 1
+            log = StageLog(notebook.name, cells).start()
+            hooks = {"on_cell_start": log.on_cell_start, "on_cell_executed": log.on_cell_executed}
         try:
             with _kernel_env(MPLBACKEND=INLINE_BACKEND):
                 pm.execute_notebook(str(notebook), str(out), parameters=params, cwd=str(REPO),
-                                    progress_bar=progress, kernel_name="python3", execution_timeout=timeout,
-                                    kernel_manager_class=RearmingKernelManager)
+                                    progress_bar=False, kernel_name="python3", execution_timeout=timeout,
+                                    kernel_manager_class=RearmingKernelManager, **hooks)
+            if log is not None:
+                log.finish(ok=True)
             break
         except (CellTimeoutError, DeadKernelError) as exc:
+            if log is not None:
+                log.finish(ok=False)
             if attempt == 2 or params.get("backend") == "usb":
                 raise
             warnings.warn(f"{notebook.name}: {type(exc).__name__}: {str(exc).splitlines()[0]}; running it "
                           f"once more", RuntimeWarning, stacklevel=2)
+        except BaseException:
+            if log is not None:
+                log.finish(ok=False)
+            raise
     nb = nbformat.read(str(out), as_version=4)
     if add_widget_snapshots(nb):
         nbformat.write(nb, str(out))
@@ -210,8 +227,17 @@ def run_all(out_dir: str | Path = "reports", smoke: bool = False, workers: int |
     skipped: list[Path] = []
     waiting = run_order(paths)
     error = None
-    with tqdm(total=len(paths), desc="notebooks", unit="nb") as bar, \
-            ProcessPoolExecutor(max_workers=workers) as pool:
+    t0 = time.monotonic()
+    ended = 0
+
+    def tally(p: Path, what: str) -> None:
+        nonlocal ended
+        ended += 1
+        print(f"[run] {p.name} {what}: {ended}/{len(paths)} notebooks ended after "
+              f"{clock(time.monotonic() - t0)}", file=sys.stderr, flush=True)
+
+    print(f"[run] {len(paths)} notebooks, {workers} at a time, into {out_dir}", file=sys.stderr, flush=True)
+    with ProcessPoolExecutor(max_workers=workers) as pool:
         running = {}
         while waiting or running:
             for p in list(waiting):
@@ -220,10 +246,10 @@ def run_all(out_dir: str | Path = "reports", smoke: bool = False, workers: int |
                     waiting.remove(p)
                     failed.add(_number(p))
                     skipped.append(p)
-                    bar.update(1)
+                    tally(p, "skipped (it reads from a failed notebook)")
                 elif len(running) < workers and all(d in done for d in deps):
                     waiting.remove(p)
-                    running[pool.submit(execute, p, out_dir, {"smoke": smoke})] = p
+                    running[pool.submit(execute, p, out_dir, {"smoke": smoke}, progress=True)] = p
             if not running:
                 if waiting:   # nothing can start and nothing runs: DEPENDS_ON has a cycle
                     raise RuntimeError(f"notebooks {[p.name for p in waiting]} wait for each other "
@@ -238,7 +264,7 @@ def run_all(out_dir: str | Path = "reports", smoke: bool = False, workers: int |
                     exc.add_note(f"while executing {p} (its executed copy: {Path(out_dir) / p.name})")
                     failed.add(_number(p))
                     error = error or exc
-                bar.update(1)
+                tally(p, "failed" if _number(p) in failed else "done")
     if error is not None:
         if skipped:
             error.add_note("not run, as they read from a failed notebook: "

@@ -253,7 +253,7 @@ def _notebook_with_cells(path, cells):
     return path
 
 
-def _fake_execute(notebook, out_dir, parameters):
+def _fake_execute(notebook, out_dir, parameters, progress=False):
     """Stands in for notebooks.execute in run_all's pool: records when it ran."""
     import time as _time
     from pathlib import Path as _Path
@@ -284,7 +284,7 @@ def test_run_all_runs_two_at_a_time_along_the_dependencies(tmp_path, monkeypatch
         notebooks.run_all(tmp_path, workers=0)
 
 
-def _fake_execute_02_fails(notebook, out_dir, parameters):
+def _fake_execute_02_fails(notebook, out_dir, parameters, progress=False):
     from pathlib import Path as _Path
     if _Path(notebook).name.startswith("02"):
         raise ValueError("02 failed")
@@ -300,6 +300,48 @@ def test_run_all_skips_what_reads_from_a_failed_notebook(tmp_path, monkeypatch):
         notebooks.run_all(tmp_path, workers=2)
     assert sorted(p.stem[:2] for p in tmp_path.glob("*.ran")) == ["01", "04", "05"]
     assert any("not run" in n and "03_c.ipynb" in n for n in err.value.__notes__)
+
+
+def test_run_all_says_each_notebook_as_it_ends(tmp_path, monkeypatch, capfd):
+    names = ["01_a.ipynb", "02_b.ipynb", "03_c.ipynb", "04_d.ipynb", "05_e.ipynb"]
+    monkeypatch.setattr(notebooks, "notebook_paths", lambda: [tmp_path / n for n in names])
+    monkeypatch.setattr(notebooks, "execute", _fake_execute_02_fails)
+    with pytest.raises(ValueError, match="02 failed"):
+        notebooks.run_all(tmp_path, workers=2)
+    lines = [ln for ln in capfd.readouterr().err.splitlines() if ln.startswith("[run]")]
+    assert lines[0].startswith("[run] 5 notebooks, 2 at a time")
+    ends = lines[1:]
+    assert len(ends) == 5 and [ln.split(": ")[1].split()[0] for ln in ends] == ["1/5", "2/5", "3/5", "4/5", "5/5"]
+    assert any("02_b.ipynb failed" in ln for ln in ends)
+    assert any("03_c.ipynb skipped" in ln for ln in ends)
+    assert sum(" done: " in ln for ln in ends) == 3
+
+
+def test_a_run_says_its_sections_and_a_long_cell_while_it_runs(tmp_path, monkeypatch, capfd):
+    """Progress lines from the first second: the start, each markdown heading as the run
+    reaches it, a heartbeat naming a cell that runs long, the end with its time."""
+    from leglib.notebook import progress
+    monkeypatch.setattr(progress, "HEARTBEAT_S", 0.5)
+    nb = nbformat.v4.new_notebook(cells=[
+        nbformat.v4.new_markdown_cell("# 1. Set-up\nsome text"), nbformat.v4.new_code_cell("x = 1"),
+        nbformat.v4.new_markdown_cell("## 2. The long part"),
+        nbformat.v4.new_code_cell("import time\ntime.sleep(2.0)  # a sweep")])
+    nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
+    path = tmp_path / "07_progress.ipynb"
+    nbformat.write(nb, str(path))
+    execute(path, tmp_path / "out", html=False, progress=True)
+    lines = [ln for ln in capfd.readouterr().err.splitlines() if ln.startswith("[07]")]
+    assert lines[0] == "[07] 07_progress.ipynb: started"
+    assert lines[1].startswith("[07] 1. Set-up (cell 2/5, ")  # after papermill's injected parameters
+    assert lines[2].startswith("[07] 2. The long part (cell 4/5, ")
+    beats = [ln for ln in lines if "running for" in ln]
+    assert beats and all("cell 5/5" in ln and "import time" in ln for ln in beats)
+    assert lines[-1].startswith("[07] 07_progress.ipynb: done in ")
+    # a failing run says so
+    bad = _notebook_with_cells(tmp_path / "08_bad.ipynb", ["raise ValueError('no')"])
+    with pytest.raises(Exception, match="no"):
+        execute(bad, tmp_path / "out", html=False, progress=True)
+    assert "[08] 08_bad.ipynb: FAILED after" in capfd.readouterr().err
 
 
 def test_a_cell_past_the_timeout_names_the_cell_and_is_tried_once_more(tmp_path):
