@@ -3,6 +3,7 @@ calls; every slider has ``continuous_update=False``."""
 
 from __future__ import annotations
 
+import io
 import math
 
 import numpy as np
@@ -16,6 +17,86 @@ from ..model.kinematics import foot_position
 from ..thesis import foot_mass, virtual_leg
 
 THESIS_TORQUE_LIMIT = 0.73  # N*m at a joint: the thesis's current limit through the 1:3 belt
+
+
+class PanelFigure:
+    """A panel's figure, made once and drawn again in place on every change, shown as a PNG
+    in an ``ipywidgets.Output`` (the previous picture stays until the next is ready).
+
+    A slider's callback clears and redraws only the *dynamic* axes; axes listed as
+    ``static`` are drawn once (by the caller, before the first :meth:`show`) and kept as
+    pixels, with ``overlays`` (artists on them, e.g. a marker) drawn on top each time. The
+    layout is fixed at the first :meth:`show` (``tight_layout``), so no redraw computes it
+    again, and the PNG is the figure's canvas (no tight bounding box to search).
+
+    Parameters
+    ----------
+    out : the Output widget showing the figure
+    ncols : axes side by side
+    figsize : inches
+    static : indices of the axes drawn once
+    """
+
+    def __init__(self, out, ncols: int, figsize, static=()):
+        from matplotlib.backends.backend_agg import FigureCanvasAgg  # load time: matplotlib, only when drawing
+        from matplotlib.figure import Figure  # load time: as matplotlib's canvas above
+
+        self.out = out
+        self.fig = Figure(figsize=figsize)
+        FigureCanvasAgg(self.fig)
+        self.axes = list(np.atleast_1d(self.fig.subplots(1, ncols)))
+        self.static = [self.axes[i] for i in static]
+        self.dynamic = [ax for ax in self.axes if ax not in self.static]
+        self.overlays: list = []
+        self._background = None
+
+    def clear(self) -> list:
+        """Empty the dynamic axes for the callback to draw into (its lines, markers, texts
+        and legend go; the axes with their ticks stay: ``cla()`` would make the ticks anew,
+        most of a redraw's time); returns all the axes."""
+        for ax in self.dynamic:
+            for artist in [*ax.lines, *ax.collections, *ax.texts, *ax.patches, *ax.images]:
+                artist.remove()
+            if ax.get_legend() is not None:
+                ax.get_legend().remove()
+            ax.relim()
+            ax.autoscale()
+        return self.axes
+
+    def png(self) -> bytes:
+        """The figure as PNG: the static axes from the first draw's pixels, the dynamic axes
+        and the overlays drawn now."""
+        from PIL import Image  # load time: Pillow (matplotlib's own dependency), only when drawing
+
+        canvas = self.fig.canvas
+        if self._background is None:
+            self.fig.tight_layout()
+            hidden = self.dynamic + self.overlays
+            for a in hidden:
+                a.set_visible(False)
+            canvas.draw()
+            self._background = canvas.copy_from_bbox(self.fig.bbox)
+            for a in hidden:
+                a.set_visible(True)
+        canvas.restore_region(self._background)
+        renderer = canvas.get_renderer()
+        for ax in self.dynamic:
+            ax.draw(renderer)
+        for artist in self.overlays:
+            artist.draw(renderer)
+        buf = canvas.buffer_rgba()
+        image = Image.frombuffer("RGBA", (buf.shape[1], buf.shape[0]), buf, "raw", "RGBA", 0, 1)
+        data = io.BytesIO()
+        image.save(data, format="png", compress_level=1)
+        return data.getvalue()
+
+    def show(self) -> None:
+        from IPython.display import Image, display  # load time: IPython, only inside a notebook
+
+        picture = Image(data=self.png(), format="png")
+        with self.out:
+            self.out.clear_output(wait=True)
+            display(picture)
 
 
 def design_readout(d) -> str:
@@ -95,7 +176,6 @@ def pole_placement_panel(sys, center: float = -7.0, spread: float = 0.007, obser
     children[4] the plots.
     """
     import ipywidgets as W  # load time: ipywidgets, only inside a notebook
-    import matplotlib.pyplot as plt  # load time: matplotlib (about 0.5 s), only when drawing
 
     s_center = W.FloatSlider(value=center, min=-30.0, max=-1.0, step=0.5, description="pole centre",
                              continuous_update=False, readout_format=".1f")
@@ -110,6 +190,7 @@ def pole_placement_panel(sys, center: float = -7.0, spread: float = 0.007, obser
     readout = W.HTML()
     warning = W.HTML()
     out = W.Output()
+    view = PanelFigure(out, 3, (15, 3.8))
     t = np.linspace(0, duration, 401)
 
     def redraw(*_):
@@ -131,35 +212,32 @@ def pole_placement_panel(sys, center: float = -7.0, spread: float = 0.007, obser
                 why = f"nonlinear preview failed: {exc}"
         text = saturation_warning(tau_lin, torque_limit)
         warning.value = "".join(f"<p style='color:#b00'><b>warning:</b> {m}</p>" for m in (text, why) if m)
-        with out:
-            out.clear_output(wait=True)
-            fig, (a1, a2, a3) = plt.subplots(1, 3, figsize=(15, 3.8))
-            plots.plot_pole_map(d, ax=a1)
-            a1.set_title("poles [1/s]")
-            a2.plot(t, np.degrees(y[:, 0]), "b--", lw=1, label="q1, linear")
-            a2.plot(t, np.degrees(y[:, 1]), "r--", lw=1, label="q2, linear")
-            a2.axhline(np.degrees(step_rad[1]), color="k", ls=":", lw=0.8, label="q2 setpoint")
-            a3.plot(t, tau_lin[:, 0], "b--", lw=1, label="tau1, linear demand")
-            a3.plot(t, tau_lin[:, 1], "r--", lw=1, label="tau2, linear demand")
-            if res is not None:
-                q0 = np.array(leg.q0)
-                a2.plot(res.t, np.degrees(res.x[:, 0] - q0[0]), "b-", label="q1, nonlinear, limited")
-                a2.plot(res.t, np.degrees(res.x[:, 2] - q0[1]), "r-", label="q2, nonlinear, limited")
-                tau0 = np.array(res.meta["tau0"])
-                a3.plot(res.t, res.tau[:, 0] - tau0[0], "b-", label="tau1, nonlinear")
-                a3.plot(res.t, res.tau[:, 1] - tau0[1], "r-", label="tau2, nonlinear")
-            for s in (1, -1):
-                a3.axhline(s * torque_limit, color="k", lw=0.8, ls="-.", label="torque limit" if s > 0 else None)
-            a2.set_xlabel("t [s]")
-            a2.set_ylabel("joint angle deviation [deg]")
-            a2.set_title("predicted step" + (" (linear and nonlinear)" if res is not None else " (linear)"))
-            a2.legend(fontsize=7)
-            a3.set_xlabel("t [s]")
-            a3.set_ylabel("joint torque deviation [N m]")
-            a3.set_title("torques against the limit")
-            a3.legend(fontsize=7)
-            fig.tight_layout()
-            plt.show()
+        a1, a2, a3 = view.clear()
+        plots.plot_pole_map(d, ax=a1)
+        a1.set_title("poles [1/s]")
+        a2.plot(t, np.degrees(y[:, 0]), "b--", lw=1, label="q1, linear")
+        a2.plot(t, np.degrees(y[:, 1]), "r--", lw=1, label="q2, linear")
+        a2.axhline(np.degrees(step_rad[1]), color="k", ls=":", lw=0.8, label="q2 setpoint")
+        a3.plot(t, tau_lin[:, 0], "b--", lw=1, label="tau1, linear demand")
+        a3.plot(t, tau_lin[:, 1], "r--", lw=1, label="tau2, linear demand")
+        if res is not None:
+            q0 = np.array(leg.q0)
+            a2.plot(res.t, np.degrees(res.x[:, 0] - q0[0]), "b-", label="q1, nonlinear, limited")
+            a2.plot(res.t, np.degrees(res.x[:, 2] - q0[1]), "r-", label="q2, nonlinear, limited")
+            tau0 = np.array(res.meta["tau0"])
+            a3.plot(res.t, res.tau[:, 0] - tau0[0], "b-", label="tau1, nonlinear")
+            a3.plot(res.t, res.tau[:, 1] - tau0[1], "r-", label="tau2, nonlinear")
+        for s in (1, -1):
+            a3.axhline(s * torque_limit, color="k", lw=0.8, ls="-.", label="torque limit" if s > 0 else None)
+        a2.set_xlabel("t [s]")
+        a2.set_ylabel("joint angle deviation [deg]")
+        a2.set_title("predicted step" + (" (linear and nonlinear)" if res is not None else " (linear)"))
+        a2.legend(fontsize=7)
+        a3.set_xlabel("t [s]")
+        a3.set_ylabel("joint torque deviation [N m]")
+        a3.set_title("torques against the limit")
+        a3.legend(fontsize=7)
+        view.show()
 
     for s in (s_center, s_spread, s_obs, s_zeta, t_poles):
         s.observe(redraw, names="value")
@@ -204,8 +282,6 @@ def gain_step_panel(odrv, gm=None, pos_gain: float = 50.0, vel_gain: float = 0.0
     second-order step, the setpoint and R^2 (or "not a second-order step"), the readout
     (:func:`step_readout`), and its place on the map's achievable region."""
     import ipywidgets as W  # load time: ipywidgets, only inside a notebook
-    import matplotlib.pyplot as plt  # load time: matplotlib (about 0.5 s), only when drawing
-
 
     cfg = odrv.config
     s_pos = W.FloatSlider(value=pos_gain, min=1.0, max=min(cfg.max_pos_gain, 100.0), step=1.0,
@@ -216,36 +292,41 @@ def gain_step_panel(odrv, gm=None, pos_gain: float = 50.0, vel_gain: float = 0.0
                           description="vel_int_gain", continuous_update=False, readout_format=".3f")
     readout = W.HTML()
     out = W.Output()
+    leg = getattr(odrv, "leg", None)
+    # the map's region is drawn once and kept as pixels; each step moves only its marker
+    view = PanelFigure(out, 2, (11, 3.8), static=(1,) if gm is not None else ())
+    a2 = view.axes[1]
+    if gm is not None:
+        plots.plot_gain_region(gm, ax=a2)
+        here = a2.scatter(np.empty(0), np.empty(0), s=120, marker="*", c="orange", label="this step")
+        a2.legend(fontsize=8)
+        view.overlays.append(here)
 
     def redraw(*_):
         resp = step_response(odrv, s_pos.value, s_vel.value, s_int.value)
         p = identify_response(resp)
-        text = step_readout(resp, p, leg=getattr(odrv, "leg", None))
+        text = step_readout(resp, p, leg=leg)
         readout.value = f"<code class='leglib-readout'>{text}</code>"
-        with out:
-            out.clear_output(wait=True)
-            fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.8))
-            a1.plot(resp.t, resp.y * 1e3, "r-", label="measured")
-            fit = p.fit  # None when unstable or not identifiable at all
-            if fit is not None:
-                style = "b--" if p.status == "ok" else "0.5"
-                a1.plot(resp.t, fit.response(resp.t) * 1e3, style, lw=1.2,
-                        label=f"second-order fit, R^2 = {fit.r2:.3f}" + ("" if p.status == "ok" else " (rejected)"))
-            leg = getattr(odrv, "leg", None)
-            if leg is not None:
-                a1.axhline(foot_setpoint(leg, resp) * 1e3, color="k", ls=":", lw=0.8, label="setpoint")
-            if p.status != "ok":
-                a1.text(0.5, 0.5, "not a second-order step" if p.status == "failed" else p.status,
-                        transform=a1.transAxes, ha="center", color="#b00", fontsize=12,
-                        bbox={"fc": "w", "ec": "#b00"})
-            a1.set_xlabel("t [s]")
-            a1.set_ylabel("foot height y [mm]")
-            a1.set_title(f"step with gains ({s_pos.value:g}, {s_vel.value:g}, {s_int.value:g})")
-            a1.legend(fontsize=8)
-            if gm is not None:
-                plots.plot_gain_region(gm, ax=a2, marker=(p.zeta, p.fn) if p.status == "ok" else None)
-            fig.tight_layout()
-            plt.show()
+        a1 = view.clear()[0]
+        a1.plot(resp.t, resp.y * 1e3, "r-", label="measured")
+        fit = p.fit  # None when unstable or not identifiable at all
+        if fit is not None:
+            style = "b--" if p.status == "ok" else "0.5"
+            a1.plot(resp.t, fit.response(resp.t) * 1e3, style, lw=1.2,
+                    label=f"second-order fit, R^2 = {fit.r2:.3f}" + ("" if p.status == "ok" else " (rejected)"))
+        if leg is not None:
+            a1.axhline(foot_setpoint(leg, resp) * 1e3, color="k", ls=":", lw=0.8, label="setpoint")
+        if p.status != "ok":
+            a1.text(0.5, 0.5, "not a second-order step" if p.status == "failed" else p.status,
+                    transform=a1.transAxes, ha="center", color="#b00", fontsize=12,
+                    bbox={"fc": "w", "ec": "#b00"})
+        a1.set_xlabel("t [s]")
+        a1.set_ylabel("foot height y [mm]")
+        a1.set_title(f"step with gains ({s_pos.value:g}, {s_vel.value:g}, {s_int.value:g})")
+        a1.legend(fontsize=8)
+        if gm is not None:
+            here.set_offsets(np.array([[p.zeta, p.fn]]) if p.status == "ok" else np.empty((0, 2)))
+        view.show()
 
     for s in (s_pos, s_vel, s_int):
         s.observe(redraw, names="value")

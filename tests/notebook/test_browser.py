@@ -23,13 +23,13 @@ from pathlib import Path
 
 import pytest
 
-import leglib as lg
 from leglib import model as M
 from leglib.design import statefeedback as SF
 from leglib.notebook import widgets
 from leglib.notebook.run import REPO, notebook_paths
 
-pytestmark = pytest.mark.browser
+# one JupyterLab for the file: under pytest-xdist (make test) its tests stay on one worker
+pytestmark = [pytest.mark.browser, pytest.mark.xdist_group("lab")]
 
 CHROMIUM_FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
                   "--disable-component-update", "--disable-sync", "--no-first-run"]
@@ -82,8 +82,8 @@ def lab(tmp_path_factory, processed):
     import papermill as pm
 
     chromium = _chromium()
-    for old in SCREENSHOTS.glob("*.png"):  # screenshots of an earlier run, not of this one
-        old.unlink()
+    for old in [*SCREENSHOTS.glob("*.png"), SLIDER_TIMES]:  # of an earlier run, not of this one
+        old.unlink(missing_ok=True)
     root = tmp_path_factory.mktemp("lab")
     out = root / "out"
     prepared = {
@@ -238,13 +238,41 @@ def _move_slider(page, panel, label: str, expected_value: str, expected_readout:
     expect(slider.locator(".widget-readout")).to_have_text(expected_value.replace("-", "\u2212"),
                                                            timeout=30_000)
     expect(panel.locator("code.leglib-readout")).to_have_text(expected_readout, timeout=120_000)
-    page.wait_for_function(
-        "([el, old]) => { const img = el.querySelector('.widget-output .jp-OutputArea-output img');"
-        " return img !== null && img.getAttribute('src') !== old; }",
-        arg=[panel.element_handle(), before], timeout=60_000)
+    page.wait_for_function(_IMG_CHANGED, arg=[panel.element_handle(), before], timeout=60_000)
     after = plot.get_attribute("src")
     _screenshot(page, f"{name}_after", panel)
     return before, after
+
+
+SLIDER_TIMES = SCREENSHOTS / "slider_times.json"
+_IMG_CHANGED = ("([el, old]) => { const img = el.querySelector('.widget-output .jp-OutputArea-output img');"
+                " return img !== null && img.getAttribute('src') !== old; }")
+
+
+def _time_moves(page, panel, label: str, moves: int = 7) -> list[float]:
+    """Seconds from a key press on slider ``label`` (left, right, left, ...: a release of
+    the slider by keyboard) to the panel's redrawn plot in the page, for ``moves`` moves."""
+    slider = panel.locator(".widget-slider", has=page.locator(".widget-label", has_text=label)).first
+    plot = panel.locator(".widget-output .jp-OutputArea-output img").first
+    slider.locator(".noUi-handle").first.focus()
+    times = []
+    for k in range(moves):
+        before = plot.get_attribute("src")
+        t0 = time.perf_counter()
+        page.keyboard.press("ArrowLeft" if k % 2 == 0 else "ArrowRight")
+        page.wait_for_function(_IMG_CHANGED, arg=[panel.element_handle(), before], timeout=60_000, polling=5)
+        times.append(time.perf_counter() - t0)
+    return times
+
+
+def _record_slider_times(prefix: str, label: str, times: list[float]) -> None:
+    """The moves' times into reports/browser/slider_times.json (``make bench`` reports them)."""
+    import statistics
+    record = json.loads(SLIDER_TIMES.read_text()) if SLIDER_TIMES.exists() else {}
+    record[prefix] = {"slider": label, "times_s": times, "median_s": statistics.median(times),
+                      "date": time.strftime("%Y-%m-%d %H:%M:%S")}
+    SLIDER_TIMES.parent.mkdir(parents=True, exist_ok=True)
+    SLIDER_TIMES.write_text(json.dumps(record, indent=2))
 
 
 def _panel(page):
@@ -271,6 +299,9 @@ def _slider_session(browser, lab, prefix: str, label: str, value_text: str, expe
         expect(panel.locator("code.leglib-readout")).to_have_text(initial, timeout=30_000)
         before, after = _move_slider(page, panel, label, value_text, moved, f"{prefix}_{label.replace(' ', '_')}")
         assert before != after and after.startswith("data:image/png")
+        # then the time from a slider's release to the redrawn figure, several moves
+        times = _time_moves(page, panel, label)
+        _record_slider_times(prefix, label, times)
         _screenshot(page, f"{nb.stem}_page")
     finally:
         page.close()

@@ -100,3 +100,48 @@ def test_gain_panel_shows_fit_and_refuses_non_second_order_steps(leg):
     p = identify_response(r)
     assert p.status != "ok" and "zeta" not in shown, shown
     assert ("not a second-order step" in shown) == (p.status == "failed")
+
+
+def _pixels(png: bytes) -> np.ndarray:
+    import io
+
+    from PIL import Image
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGBA"))
+
+
+def test_a_panel_figure_redraws_what_changed_and_keeps_the_rest():
+    """PanelFigure: the static axes' pixels are those of the first draw on every update;
+    the dynamic axes show the new data exactly as a full draw of the same figure does; an
+    overlay moved leaves no trace where it was."""
+    import ipywidgets as W
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    view = widgets.PanelFigure(W.Output(), 2, (8, 3), static=(1,))
+    view.axes[1].plot([0, 1], [0, 1], "k-")
+    view.axes[1].set_xlim(0, 1)
+    view.axes[1].set_ylim(0, 1)
+    marker = view.axes[1].scatter([0.2], [0.8], s=200, c="orange")
+    view.overlays.append(marker)
+
+    def draw(y):
+        ax = view.clear()[0]
+        ax.plot(np.linspace(0, 1, 50), y, "r-")
+        ax.set_ylim(-2, 2)
+        return _pixels(view.png())
+
+    first = draw(np.sin(np.linspace(0, 6, 50)))
+    marker.set_offsets([[0.8, 0.2]])
+    second = draw(np.cos(np.linspace(0, 6, 50)))
+    h, w = first.shape[:2]
+    assert (h, w) == (round(3 * view.fig.dpi), round(8 * view.fig.dpi))
+    # the same figure drawn from scratch, everything at once, gives the update's pixels
+    FigureCanvasAgg(view.fig).draw()
+    full = np.asarray(view.fig.canvas.buffer_rgba())
+    assert np.array_equal(second, full)
+    # the dynamic axes changed; where the marker was, the static background is back
+    left = view.axes[0].get_window_extent()
+    rows = slice(int(h - left.y1), int(h - left.y0))
+    assert not np.array_equal(first[rows, : int(left.x1)], second[rows, : int(left.x1)])
+    x, y = view.axes[1].transData.transform((0.2, 0.8))
+    px = (int(h - y), int(x))
+    assert tuple(first[px][:3]) != (255, 255, 255) and tuple(second[px][:3]) == (255, 255, 255)
