@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import io
+import re
 import tempfile
 from pathlib import Path
 
@@ -390,6 +391,24 @@ def save_animation(anim, path, fps: float | None = None) -> "Path":
     return path
 
 
+# matplotlib's animation player (matplotlib/_animation_data.py): its Font Awesome 4 icons as
+# characters of Basic Latin and Geometric Shapes (U+25A0-25FF), which common fonts cover (DejaVu
+# Sans, matplotlib's own, included); the media-control symbols (U+23E9-23EF) often are not
+PLAYER_ICONS = {"fa-minus": "\u2212", "fa-fast-backward": "\u25ae\u25c0\u25c0", "fa-step-backward": "\u25c0\u25ae",
+                "fa-play fa-flip-horizontal": "\u25c0", "fa-pause": "\u25ae\u25ae", "fa-play": "\u25b6",
+                "fa-step-forward": "\u25ae\u25b6", "fa-fast-forward": "\u25b6\u25b6\u25ae", "fa-plus": "+"}
+_ICON = re.compile(r'<i class="fa (' + "|".join(sorted(map(re.escape, PLAYER_ICONS), key=len, reverse=True))
+                   + r')"></i>')
+_FONT_AWESOME = re.compile(r'<link rel="stylesheet"\s+href="https://[^"]*font-awesome[^"]*">\s*')
+
+
+def player_html(html: str) -> str:
+    """matplotlib's animation player without Font Awesome (loaded from a CDN, so blank buttons
+    offline): its icons as Unicode characters."""
+    html = _FONT_AWESOME.sub("", html)
+    return _ICON.sub(lambda m: f'<span class="leglib-icon">{PLAYER_ICONS[m.group(1)]}</span>', html)
+
+
 def show_animation(anim, figures_dir=None, name: str | None = None):
     """The animation as a self-contained HTML player (as ``anim.to_jshtml()``: PNG frames
     embedded, no ffmpeg needed) for a notebook's output; its figure is closed so the
@@ -420,7 +439,7 @@ def show_animation(anim, figures_dir=None, name: str | None = None):
         page = Path(tmp) / "animation.html"
         anim.save(str(page), writer=Writer(fps=fps, embed_frames=True,
                                            default_mode="loop" if getattr(anim, "_repeat", False) else "once"))
-        html = HTML(page.read_text())
+        html = HTML(player_html(page.read_text()))  # buttons that need no CDN
     if figures_dir is not None and name:
         gif = Path(figures_dir) / f"{name}.gif"
         if frames:
@@ -429,7 +448,7 @@ def show_animation(anim, figures_dir=None, name: str | None = None):
                            loop=0)
         else:   # a matplotlib whose HTML writer keeps its frames elsewhere: draw them again
             save_animation(anim, gif)
-    plt.close(anim.figure)
+    plt.close(anim._fig)  # matplotlib's own reference: any Animation, not only animate_leg's
     return html
 
 

@@ -17,6 +17,7 @@ import warnings
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
+from .offline import offline_notebook
 from .progress import StageLog, clock
 
 REPO = Path(__file__).resolve().parents[2]
@@ -176,11 +177,13 @@ def count_figures(nb) -> int:
 
 
 def to_html(executed: Path) -> Path:
-    """Convert an executed notebook to HTML beside it (figures embedded)."""
+    """Convert an executed notebook to HTML beside it (figures embedded, maths as MathML,
+    nothing loaded from the network: :mod:`leglib.notebook.offline`)."""
     import nbformat  # load time: nbformat (about 1 s), only when notebooks run
     from nbconvert import HTMLExporter  # load time: nbconvert, only when a report is written
 
     nb = nbformat.read(str(executed), as_version=4)
+    offline_notebook(nb)  # maths as MathML, players without a CDN: the report works offline
     body, _ = HTMLExporter().from_notebook_node(nb)
     path = Path(executed).with_suffix(".html")
     path.write_text(body)

@@ -501,3 +501,66 @@ def test_live_view_redraws_during_a_realtime_step(lab, browser):
     # the mean rate only shows that sampling went on throughout: how far a loaded 2-core host
     # lowers it is a benchmark's matter (make bench liveview_sampling), not this test's
     assert stats["sample_rate_hz"] > 250
+
+
+# ---------------------------------------------------------------------------------------
+# a report read offline: maths rendered, the animation player working, nothing fetched
+# ---------------------------------------------------------------------------------------
+
+def test_a_report_works_offline(browser, tmp_path):
+    """A report written by leglib (execute -> to_html) opened with every network request
+    refused: the maths of markdown cells and of sympy's outputs are MathML the browser lays
+    out (no TeX left in the text), and the animation player's buttons show and step frames."""
+    import nbformat
+    from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook
+
+    from leglib.notebook.run import execute
+    nb = new_notebook(cells=[
+        new_markdown_cell("# Offline\nThe joint $q_1$ and the ratio $$\\frac{l_1}{l_2} = \\sqrt{2}$$ and `$not maths$`."),
+        new_code_cell("import sympy as sp\nq = sp.symbols('q1')\nsp.Matrix([[sp.cos(q), sp.Rational(1, 3)]])"),
+        new_code_cell("import numpy as np, matplotlib.pyplot as plt\nfrom matplotlib.animation import FuncAnimation\n"
+                      "from leglib import plots\nfig, ax = plt.subplots(figsize=(3, 2))\nline, = ax.plot([0, 1], [0, 0])\n"
+                      "anim = FuncAnimation(fig, lambda k: line.set_ydata([0, k]), frames=4, interval=100)\n"
+                      "plots.show_animation(anim)"),
+    ])
+    nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
+    path = tmp_path / "offline.ipynb"
+    nbformat.write(nb, str(path))
+    report = execute(path, tmp_path / "out", html=True).with_suffix(".html")
+
+    fetched = []
+    page = browser.new_page()
+    try:
+        def refuse(route):
+            if route.request.url.startswith("file:"):
+                route.continue_()
+            else:
+                fetched.append(route.request.url)
+                route.abort()
+        page.route("**/*", refuse)
+        page.goto(report.as_uri())
+        text = page.locator("body").inner_text()
+        assert "$" not in text.replace("$not maths$", ""), "TeX left in the page"
+        assert "\\frac" not in text and "\\displaystyle" not in text and "\\left" not in text
+        maths = page.locator("math")
+        assert maths.count() >= 3  # q_1, the fraction, the sympy matrix
+        for k in range(maths.count()):
+            box = maths.nth(k).bounding_box()
+            assert box is not None and box["width"] > 5 and box["height"] > 5, f"formula {k} not laid out"
+        # the player: buttons with visible characters; one step forward shows another frame
+        buttons = page.locator(".anim-buttons button")
+        assert buttons.count() == 9
+        labels = [buttons.nth(k).inner_text().strip() for k in range(buttons.count())]
+        assert all(labels) and len(set(labels)) == 9, labels
+        # characters a common font has (Geometric Shapes, Basic Latin), not tofu boxes
+        assert all(ord(c) < 0x80 or 0x25A0 <= ord(c) <= 0x25FF or c == "\u2212" for c in "".join(labels)), labels
+        frame = page.locator(".animation img").first
+        before = frame.get_attribute("src")
+        page.locator(".anim-buttons button[title='Next frame']").click()
+        assert frame.get_attribute("src") != before
+        _screenshot(page, "offline_report")
+    finally:
+        page.close()
+    # the page asked the network only for what it does without (MathJax, require.js): the
+    # refusals did not cost a formula or a button (checked above)
+    assert not any("font-awesome" in u for u in fetched)

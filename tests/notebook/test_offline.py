@@ -1,0 +1,53 @@
+"""Reports that need no network (leglib.notebook.offline): TeX becomes MathML where it is
+maths and stays as it is where it is code or money; the player's icons become characters."""
+
+import nbformat
+from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook, new_output
+
+from leglib import plots
+from leglib.notebook import offline
+
+
+def test_maths_in_markdown_becomes_mathml_and_code_and_prices_stay():
+    text = ("The joint $q_1$, the ratio $$\\frac{l_1}{l_2}$$, code `$x$` and\n```\n$y$\n```\n"
+            "a price of $5 and $6, and an escaped \\$z\\$.")
+    out = offline.markdown_math(text)
+    assert out.count("<math") == 2 and 'display="block"' in out and 'display="inline"' in out
+    assert "<mi>q</mi>" in out and "<mfrac>" in out
+    assert "`$x$`" in out and "\n$y$\n" in out            # code untouched
+    assert "$5 and $6" in out and "\\$z\\$" in out        # not maths
+    assert "$q_1$" not in out and "\\frac" not in out
+
+
+def test_sympy_latex_outputs_get_mathml_html_and_a_bad_formula_says_so():
+    html = offline.latex_output_html("$\\displaystyle \\left[\\begin{matrix}1 & 2\\end{matrix}\\right]$")
+    assert html.startswith("<math") and 'display="block"' in html and "<mtable>" in html
+    bad = offline.tex_to_mathml("\\begin{matrix} 1 & 2")   # never closed
+    assert bad.startswith('<code class="leglib-tex" title="not converted')
+    assert "\\begin{matrix}" in bad
+
+
+def test_a_notebook_is_rewritten_in_place():
+    nb = new_notebook(cells=[
+        new_markdown_cell("$a^2$"),
+        new_code_cell("x", outputs=[new_output("execute_result", data={"text/latex": "$\\displaystyle b$",
+                                                                        "text/plain": "b"}, execution_count=1)]),
+        new_code_cell("y", outputs=[new_output("display_data", data={"text/markdown": "| $c$ |\n|---|"})]),
+        new_code_cell("z"),
+    ])
+    assert offline.offline_notebook(nb) == 3
+    assert nb.cells[0].source.startswith("<math")
+    assert nb.cells[1].outputs[0].data["text/html"].startswith("<math")
+    assert nb.cells[1].outputs[0].data["text/latex"] == "$\\displaystyle b$"   # kept for other readers
+    assert "<math" in nb.cells[2].outputs[0].data["text/markdown"]
+    nbformat.validate(nb)
+
+
+def test_the_players_icons_are_characters_and_its_cdn_link_goes():
+    from matplotlib._animation_data import DISPLAY_TEMPLATE, STYLE_INCLUDE
+    page = STYLE_INCLUDE + DISPLAY_TEMPLATE
+    out = plots.player_html(page)
+    assert "font-awesome" not in out and 'class="fa ' not in out
+    assert out.count('class="leglib-icon"') == page.count('<i class="fa ') == 9
+    assert set(plots.PLAYER_ICONS.values()) <= {m.split(">")[1].split("<")[0]
+                                               for m in out.split('class="leglib-icon"')[1:]}
