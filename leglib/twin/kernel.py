@@ -191,17 +191,19 @@ def _run_block_any(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABO
                    rec_every, rec_offset):
     """Legs b0..b1-1: vectorized (:func:`_run_block_vector`) when they allow, else
     :func:`_run_block`; the same numbers either way."""
+    # ``plain`` goes to _run_block as a variable, never as the constant True or False: numba
+    # would compile _run_block once for each literal (about 25 s more on a first run)
     plain = _plain_block(b0, b1, P, FR, MECH)
     if plain and _vector_block(b0, b1, FR, C, AI):
         _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT, REC, rec_every,
                           rec_offset)
     elif plain:
         _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC,
-                   rec_every, rec_offset, True)
+                   rec_every, rec_offset, plain)
     else:   # one leg at a time: its state stays in the cache over the ticks
         for b in range(b0, b1):
             _run_block(b, b + 1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
-                       REC, rec_every, rec_offset, False)
+                       REC, rec_every, rec_offset, plain)
 
 
 # ---------------------------------------------------------------------------------------
