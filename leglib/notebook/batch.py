@@ -88,14 +88,49 @@ def _inspect(path: Path) -> dict:
     return _INSPECTED[key]
 
 
+# parameters a batch sets itself for every run (each run's own files under its directory)
+BATCH_SET = ("figures_dir", "metrics_path", "identified_path")
+MAX_MESSAGE = 560  # characters of a SpecError listing several problems
+
+
+def _value_key(v):
+    """A grid value by value: 0 and 0.0 are one value, True and 1 are not."""
+    if isinstance(v, bool):
+        return ("bool", v)
+    if isinstance(v, (int, float)):
+        return ("number", v)  # int and float equal by value hash alike
+    return (type(v).__name__, v)
+
+
+def _spec_error(path: Path, problems: list[str]) -> SpecError:
+    """One SpecError naming the spec file and every problem found (as many as fit)."""
+    if len(problems) == 1:
+        return SpecError(f"{path}: {problems[0]}")
+    head = f"{path}: {len(problems)} problems: "
+    shown, size = [], len(head)
+    for k, text in enumerate(problems):
+        text = text if len(text) <= 200 else text[:200] + "..."
+        rest = len(problems) - k - 1
+        tail = f"; and {rest} more" if rest else ""
+        if shown and size + len(text) + 2 + len(tail) > MAX_MESSAGE:
+            shown.append(f"and {len(problems) - k} more")
+            break
+        shown.append(text)
+        size += len(text) + 2
+    return SpecError(head + "; ".join(shown))
+
+
 def load_spec(path: str | Path) -> dict:
-    """Read and check a batch spec; SpecError names the file and the field.
+    """Read and check a batch spec; SpecError names the file and every field in error (all
+    problems found, in one message).
 
     Refused: unknown top-level keys (with a suggestion), a ``name`` that is not a plain
     directory name (letters, digits, ``.``, ``_``, ``-``; at most 64 characters; not
     ``.``/``..``), notebooks that do not exist, parameters no notebook of the spec takes,
-    values whose type differs from the notebook's parameter (an int where a float is
-    expected is fine), empty or repeated grid values, and more than MAX_RUNS runs. The
+    parameters the batch sets itself for each run (:data:`BATCH_SET`: ``figures_dir``,
+    ``metrics_path``, ``identified_path``), values whose type differs from the notebook's
+    parameter (an int where a float is expected is fine), empty grid values, values
+    repeated by value (``0`` and ``0.0`` are one value), and more than MAX_RUNS runs. The
     values' ranges are checked by each notebook's first cell.
     """
     path = Path(path)
@@ -104,55 +139,79 @@ def load_spec(path: str | Path) -> dict:
         spec = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SpecError(f"{path}: not valid TOML: {str(exc)[:200]}") from None
+    problems: list[str] = []
     for key in spec:
         if key not in SPEC_KEYS:
-            raise SpecError(f"{path}: unknown key {key!r}{_did_you_mean(key, SPEC_KEYS)}")
+            problems.append(f"unknown key {key!r}{_did_you_mean(key, SPEC_KEYS)}")
     name = spec.get("name")
     if not isinstance(name, str) or not NAME_RE.match(name) or name in (".", ".."):
-        raise SpecError(f"{path}: field 'name' must be a plain directory name (letters, digits, '.', "
+        problems.append("field 'name' must be a plain directory name (letters, digits, '.', "
                         f"'_', '-'; at most 64 characters; not '.' or '..'), got {_short(name)}")
     nbs = spec.get("notebooks")
-    if not isinstance(nbs, list) or not nbs:
-        raise SpecError(f"{path}: field 'notebooks' must be a non-empty list of notebook names")
-    for nb in nbs:
-        if not isinstance(nb, str) or not NAME_RE.match(nb):
-            raise SpecError(f"{path}: field 'notebooks': {_short(nb)} is not a notebook name")
-        if not (NOTEBOOK_DIR / f"{nb}.ipynb").is_file():
-            known = sorted(q.stem for q in NOTEBOOK_DIR.glob("*.ipynb"))
-            raise SpecError(f"{path}: notebook {nb!r} not found in {NOTEBOOK_DIR}{_did_you_mean(nb, known)}")
-    if len(set(nbs)) != len(nbs):
-        raise SpecError(f"{path}: field 'notebooks' names a notebook twice")
+    nbs_ok = isinstance(nbs, list) and bool(nbs)
+    if not nbs_ok:
+        problems.append("field 'notebooks' must be a non-empty list of notebook names")
+    else:
+        for nb in nbs:
+            if not isinstance(nb, str) or not NAME_RE.match(nb):
+                problems.append(f"field 'notebooks': {_short(nb)} is not a notebook name")
+                nbs_ok = False
+            elif not (NOTEBOOK_DIR / f"{nb}.ipynb").is_file():
+                known_nbs = sorted(q.stem for q in NOTEBOOK_DIR.glob("*.ipynb"))
+                problems.append(f"notebook {nb!r} not found in {NOTEBOOK_DIR}{_did_you_mean(nb, known_nbs)}")
+                nbs_ok = False
+        if nbs_ok and len(set(nbs)) != len(nbs):
+            problems.append("field 'notebooks' names a notebook twice")
     grid = spec.get("grid", {})
-    if not isinstance(grid, dict) or not all(isinstance(v, list) and v for v in grid.values()):
-        raise SpecError(f"{path}: field 'grid' must map parameter names to non-empty lists")
+    grid_ok = isinstance(grid, dict) and all(isinstance(v, list) and v for v in grid.values())
+    if not grid_ok:
+        problems.append("field 'grid' must map parameter names to non-empty lists")
     parameters = spec.get("parameters", {})
-    if not isinstance(parameters, dict):
-        raise SpecError(f"{path}: field 'parameters' must be a table")
-    inspected = [_inspect(NOTEBOOK_DIR / f"{nb}.ipynb") for nb in nbs]
-    known = set().union(*inspected)
-    types = {}
-    for params in inspected:
-        for k, v in params.items():
-            types.setdefault(k, v.get("inferred_type_name"))
-    for field in ("parameters", "grid"):
-        for key, value in spec.get(field, {}).items():
-            if key not in known:
-                raise SpecError(f"{path}: {field}.{key} is not a parameter of {', '.join(nbs)}"
-                                f"{_did_you_mean(key, known)}")
-            if field == "grid" and key in parameters:
-                raise SpecError(f"{path}: {key} is both in [parameters] and in [grid]")
-            values = value if field == "grid" else [value]
-            accepted = _TYPES.get(types.get(key))
-            for v in values:
-                bad_type = (isinstance(v, bool) and accepted != (bool,)) or \
-                    (accepted is not None and not isinstance(v, accepted))
-                if bad_type or not isinstance(v, (bool, int, float, str)):
-                    raise SpecError(f"{path}: {field}.{key} = {_short(v)}: expected "
-                                    f"{types.get(key) or 'a plain value'}")
-                if isinstance(v, float) and not math.isfinite(v):
-                    raise SpecError(f"{path}: {field}.{key} = {v!r}: not finite")
-            if field == "grid" and len({json.dumps(v) for v in values}) != len(values):
-                raise SpecError(f"{path}: grid.{key} repeats a value: {_short(values)}")
+    params_ok = isinstance(parameters, dict)
+    if not params_ok:
+        problems.append("field 'parameters' must be a table")
+    if nbs_ok:  # the notebooks' parameters are known: check every value against them
+        inspected = [_inspect(NOTEBOOK_DIR / f"{nb}.ipynb") for nb in dict.fromkeys(nbs)]
+        known = set().union(*inspected)
+        types = {}
+        for params in inspected:
+            for k, v in params.items():
+                types.setdefault(k, v.get("inferred_type_name"))
+        for field, table, ok in (("parameters", parameters, params_ok), ("grid", grid, grid_ok)):
+            if not ok:
+                continue
+            for key, value in table.items():
+                if key in BATCH_SET:
+                    problems.append(f"{field}.{key}: the batch sets it itself (each run's own, under "
+                                    f"its run directory); leave it out")
+                    continue
+                if key not in known:
+                    problems.append(f"{field}.{key} is not a parameter of {', '.join(nbs)}"
+                                    f"{_did_you_mean(key, known - set(BATCH_SET))}")
+                    continue
+                if field == "grid" and params_ok and key in parameters:
+                    problems.append(f"{key} is both in [parameters] and in [grid]")
+                    continue
+                values = value if field == "grid" else [value]
+                accepted = _TYPES.get(types.get(key))
+                typed = True
+                for v in values:
+                    bad_type = (isinstance(v, bool) and accepted != (bool,)) or \
+                        (accepted is not None and not isinstance(v, accepted))
+                    if bad_type or not isinstance(v, (bool, int, float, str)):
+                        problems.append(f"{field}.{key} = {_short(v)}: expected "
+                                        f"{types.get(key) or 'a plain value'}")
+                        typed = False
+                        break
+                    if isinstance(v, float) and not math.isfinite(v):
+                        problems.append(f"{field}.{key} = {v!r}: not finite")
+                        typed = False
+                        break
+                if typed and field == "grid" and len({_value_key(v) for v in values}) != len(values):
+                    problems.append(f"grid.{key} repeats a value: {_short(values)} (compared by value: "
+                                    f"0 and 0.0 are one value)")
+    if problems:
+        raise _spec_error(path, problems)
     n_runs = math.prod(len(v) for v in grid.values())
     if n_runs > MAX_RUNS:
         raise SpecError(f"{path}: the grid makes {n_runs} runs, more than {MAX_RUNS}")

@@ -103,6 +103,56 @@ def test_spec_refuses_unknown_keys_bad_names_and_types(tmp_path, text, message):
     assert len(str(err.value)) < 500
 
 
+@pytest.mark.parametrize("values", ["[0, 0.0]", "[0.5, 0.25, 0.50]", "[1, 1.0, 2]"])
+def test_grid_values_repeat_by_value(tmp_path, values):
+    """0 and 0.0 are one payload: a grid naming both would run the same point twice."""
+    p = tmp_path / "s.toml"
+    p.write_text(f'name = "x"\nnotebooks = ["04_pid_sweeps"]\n[grid]\npayload_mass = {values}\n')
+    with pytest.raises(batch.SpecError, match=r"grid\.payload_mass repeats a value") as err:
+        batch.load_spec(p)
+    assert str(p) in str(err.value)
+    p.write_text('name = "x"\nnotebooks = ["04_pid_sweeps"]\n[grid]\npayload_mass = [0, 0.5]\n')
+    assert len(batch.runs_of(batch.load_spec(p))) == 2
+
+
+@pytest.mark.parametrize("table,key", [("parameters", "figures_dir"), ("parameters", "metrics_path"),
+                                       ("grid", "figures_dir"), ("grid", "metrics_path")])
+def test_parameters_the_batch_sets_are_refused(tmp_path, table, key):
+    """A run's figures and metrics go to its own directory: a spec's own value would be
+    silently replaced, so it is refused with the reason."""
+    value = '"/tmp/mine"' if table == "parameters" else '["/tmp/a", "/tmp/b"]'
+    p = tmp_path / "s.toml"
+    p.write_text(f'name = "x"\nnotebooks = ["04_pid_sweeps"]\n[{table}]\n{key} = {value}\n')
+    with pytest.raises(batch.SpecError) as err:
+        batch.load_spec(p)
+    msg = str(err.value)
+    assert str(p) in msg and f"{table}.{key}" in msg and "the batch sets it" in msg
+
+
+def test_every_problem_of_a_spec_in_one_message(tmp_path):
+    """Three typos: one error that names the file and all three fields, not one per try."""
+    p = tmp_path / "s.toml"
+    p.write_text('name = "x"\nnotebook = ["04_pid_sweeps"]\nnotebooks = ["04_pid_sweeps"]\n'
+                 '[parameters]\nsmok = true\n[grid]\npaylod_mass = [0.0, 0.5]\n')
+    with pytest.raises(batch.SpecError) as err:
+        batch.load_spec(p)
+    msg = str(err.value)
+    assert msg.startswith(f"{p}: 3 problems: ")
+    assert "unknown key 'notebook'; did you mean 'notebooks'?" in msg
+    assert "parameters.smok is not a parameter" in msg and "did you mean 'smoke'?" in msg
+    assert "grid.paylod_mass is not a parameter" in msg and "did you mean 'payload_mass'?" in msg
+    assert "\n" not in msg and len(msg) < 600
+    # many problems: still one bounded message that says how many
+    lines = ['name = "a/b"', 'notebooks = ["04_pid_sweeps"]', "[parameters]"]
+    lines += [f"bogus_{k} = {k}" for k in range(40)]
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(batch.SpecError) as err:
+        batch.load_spec(p)
+    msg = str(err.value)
+    assert msg.startswith(f"{p}: 41 problems: ") and "field 'name'" in msg and "more" in msg
+    assert len(msg) < 600 + len(str(p))
+
+
 def test_spec_that_is_not_a_readable_utf8_file(tmp_path):
     p = tmp_path / "s.toml"
     p.write_bytes('name = "caf\u00e9"\nnotebooks = ["01_derivation"]\n'.encode("latin-1"))
