@@ -27,13 +27,14 @@ import json
 import math
 import re
 import stat
+import sys
 import tomllib
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 from tqdm.auto import tqdm
 
-from ..errors import SpecError
+from ..errors import LeglibError, SpecError
 from ..files.atomic import write_json_atomic
 from .run import NOTEBOOK_DIR, execute
 
@@ -270,14 +271,117 @@ def batch_root(out_root: str | Path, spec: dict) -> Path:
     return Path(out_root).resolve() / spec["name"]
 
 
+NO_WORKER_TIMEOUT = 120.0  # s a distributed batch waits while no Dask worker is alive
+CONNECT_TIMEOUT = 10.0  # s to reach a Dask scheduler
+
+
+class SchedulerError(LeglibError, ConnectionError):
+    """The Dask scheduler of a batch cannot be reached or its address is malformed."""
+
+
+def connect_scheduler(scheduler: str, timeout: float = CONNECT_TIMEOUT):
+    """A Dask ``Client`` of ``scheduler`` (``tcp://host:port``); SchedulerError (one line,
+    naming the address) when it is malformed or does not answer within ``timeout`` s."""
+    from dask.distributed import Client  # load time: dask (about 1 s), only with a scheduler
+
+    if not isinstance(scheduler, str) or not re.match(r"^(?:[a-z][a-z0-9+.-]*://)?[^\s/]+$", scheduler):
+        raise SchedulerError(f"--scheduler {_short(scheduler)}: not a scheduler address (tcp://host:port)")
+    try:
+        return Client(scheduler, timeout=timeout)
+    except Exception as exc:  # noqa: BLE001 - dask raises OSError, ValueError, TypeError, TimeoutError: one message
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise SchedulerError(f"--scheduler {scheduler}: cannot connect ({_short(reason, 200)})") from None
+
+
+def _live_workers(client) -> int | None:
+    """How many workers the scheduler has; None when the scheduler does not answer."""
+    try:
+        return len(client.scheduler_info(n_workers=-1).get("workers", {}))
+    except Exception:  # noqa: BLE001 - a lost scheduler: counted as no worker
+        return None
+
+
+def _task_failure(exc: BaseException) -> str:
+    """A one-line reason for a run whose Dask task failed (not a failing notebook)."""
+    if type(exc).__name__ == "KilledWorker":
+        worker = getattr(getattr(exc, "last_worker", None), "address", "?")
+        tries = getattr(exc, "allowed_failures", 0) + 1
+        return (f"KilledWorker: the Dask worker running this run died ({tries} time(s), more than the "
+                f"scheduler's allowed failures); last worker {worker}")
+    return f"{type(exc).__name__}: {_short(' '.join(str(exc).split()), 300)}"
+
+
+def _run_distributed(client, pending: list[dict], args: list[tuple], results: dict, bar,
+                     no_worker_timeout: float, poll: float = 0.25) -> None:
+    """Submit every pending run and record each as it ends; a run whose task failed
+    (KilledWorker, ...) is recorded failed with the reason; when no worker is alive for
+    ``no_worker_timeout`` s, the runs not finished are recorded ``pending`` with the reason."""
+    import time
+
+    futures = {client.submit(run_one, *a, pure=False): r for a, r in zip(args, pending)}
+    waiting = dict(futures)
+    since = None
+    while waiting:
+        ended = [f for f in waiting if f.done()]
+        for fut in ended:
+            r = waiting.pop(fut)
+            if fut.status == "finished":
+                results[r["id"]] = fut.result()
+            else:
+                try:
+                    exc = fut.exception()
+                except Exception as e:  # noqa: BLE001 - cancelled: its own exception
+                    exc = e
+                status = {"status": "failed", "params": r["params"], "metrics": {}, "notebook": None,
+                          "cell": None, "error": _task_failure(exc)}
+                results[r["id"]] = status
+                _write_status(Path(args[pending.index(r)][2]), status)
+            bar.update(1)
+        if ended or not waiting:
+            continue
+        n = _live_workers(client)
+        now = time.monotonic()
+        if n:
+            since = None
+        elif since is None:
+            since = now
+        elif now - since > no_worker_timeout:
+            what = "the scheduler did not answer" if n is None else "no Dask worker was alive"
+            reason = f"not run: {what} for {no_worker_timeout:g} s"
+            print(f"batch: {reason}; {len(waiting)} run(s) left pending", file=sys.stderr, flush=True)
+            for fut, r in waiting.items():
+                status = {"status": "pending", "params": r["params"], "metrics": {}, "notebook": None,
+                          "cell": None, "error": reason}
+                results[r["id"]] = status
+                _write_status(Path(args[pending.index(r)][2]), status)
+            try:
+                client.cancel(list(waiting))
+            except Exception:  # noqa: BLE001 - a lost scheduler: nothing to cancel
+                pass
+            return
+        time.sleep(poll)
+
+
+def _write_status(run_dir: Path, status: dict) -> None:
+    try:
+        write_json_atomic(run_dir / "status.json", status)
+    except OSError:
+        pass  # the index still shows it
+
+
 def run_batch(spec: str | Path | dict, out_root: str | Path = "reports/batch", scheduler: str | None = None,
-              workers: int = 2, progress: bool = True, cluster=None) -> dict:
+              workers: int = 2, progress: bool = True, cluster=None,
+              no_worker_timeout: float = NO_WORKER_TIMEOUT) -> dict:
     """Run every grid point of the spec (a path, or a spec from :func:`load_spec`); skip
     runs already done; write the index (``batch_root(out_root, spec) / "index.html"``).
 
-    ``scheduler``: a Dask scheduler address (``tcp://host:8786``); ``cluster``: a Dask
-    cluster object (tests use a LocalCluster); otherwise local processes (``workers``).
-    Returns {run id: status}.
+    ``scheduler``: a Dask scheduler address (``tcp://host:8786``; SchedulerError when it is
+    malformed or unreachable); ``cluster``: a Dask cluster object (tests use a
+    LocalCluster); otherwise local processes (``workers``). On Dask, a run whose worker
+    died more often than the scheduler allows (``KilledWorker``) is recorded failed with
+    the reason and the others go on; when no worker is alive for ``no_worker_timeout`` s,
+    the runs not finished are recorded ``pending`` with the reason and the index is
+    written. Returns {run id: status}.
     """
 
     spec = spec if isinstance(spec, dict) else load_spec(spec)
@@ -294,24 +398,35 @@ def run_batch(spec: str | Path | dict, out_root: str | Path = "reports/batch", s
     bar = tqdm(total=len(runs), initial=len(runs) - len(pending), desc=f"batch {spec['name']}", unit="run",
                disable=not progress)
     args = [(spec["notebooks"], r["params"], str(root / r["id"])) for r in pending]
-    if pending and (scheduler or cluster is not None):
-        from dask.distributed import Client  # load time: dask (about 1 s), only with a scheduler
-        from dask.distributed import as_completed as dask_completed  # load time: as above
-        client = Client(cluster) if cluster is not None else Client(scheduler)
-        try:
-            futures = {client.submit(run_one, *a, pure=False): r["id"] for a, r in zip(args, pending)}
-            for fut in dask_completed(futures):
-                results[futures[fut]] = fut.result()
-                bar.update(1)
-        finally:
-            client.close()
-    elif pending:
-        with ProcessPoolExecutor(max_workers=max(1, workers)) as pool:
-            futures = {pool.submit(run_one, *a): r["id"] for a, r in zip(args, pending)}
-            for fut in as_completed(futures):
-                results[futures[fut]] = fut.result()
-                bar.update(1)
-    bar.close()
+    try:
+        if pending and (scheduler or cluster is not None):
+            if cluster is not None:
+                from dask.distributed import Client  # load time: dask (about 1 s), only with a scheduler
+                client = Client(cluster)
+            else:
+                client = connect_scheduler(scheduler)
+            try:
+                _run_distributed(client, pending, args, results, bar, no_worker_timeout)
+            finally:
+                try:
+                    client.close(timeout=5)
+                except Exception:  # noqa: BLE001 - a lost scheduler: the client is gone anyway
+                    pass
+        elif pending:
+            with ProcessPoolExecutor(max_workers=max(1, workers)) as pool:
+                futures = {pool.submit(run_one, *a): r["id"] for a, r in zip(args, pending)}
+                for fut in as_completed(futures):
+                    try:
+                        results[futures[fut]] = fut.result()
+                    except Exception as exc:  # noqa: BLE001 - a worker process died (BrokenProcessPool): recorded
+                        r = next(q for q in pending if q["id"] == futures[fut])
+                        status = {"status": "failed", "params": r["params"], "metrics": {}, "notebook": None,
+                                  "cell": None, "error": _task_failure(exc)}
+                        results[r["id"]] = status
+                        _write_status(root / r["id"], status)
+                    bar.update(1)
+    finally:
+        bar.close()
     write_index(root, runs, results, spec["notebooks"])
     return results
 

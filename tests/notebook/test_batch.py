@@ -1,6 +1,10 @@
 """Batch re-runs: a 6-run grid on a Dask LocalCluster, failures reported, reruns skipped."""
 
 import json
+import os
+import sys
+import threading
+import time
 
 import pytest
 
@@ -200,3 +204,90 @@ def test_index_shows_the_payload_study_answer(tmp_path):
     assert (tmp_path / "summary.png").stat().st_size > 5000
     vals = batch.summary_values(results[runs[-1]["id"]])
     assert vals[("05_validation", "map method: worst error", "%")] == pytest.approx(2 * 0.01 * len(runs) * 100)
+
+
+# -- a distributed batch when workers die --------------------------------------------------------
+
+_RELEASE = threading.Event()
+
+
+def _hanging_run(notebooks, params, out_dir):
+    """A run that lasts until the test releases it (its worker is closed meanwhile)."""
+    _RELEASE.wait(60)
+    return {"status": "done", "params": params, "metrics": {}}
+
+
+def _run_or_die(notebooks, params, out_dir):
+    """A run that kills its worker process (grid_n 7) or finishes after a while."""
+    if params["grid_n"] == 7:
+        os._exit(1)
+    time.sleep(3.0)
+    return {"status": "done", "params": params, "metrics": {}}
+
+
+def _spec(values):
+    return {"name": "dying", "notebooks": ["01_derivation"], "parameters": {}, "grid": {"grid_n": values}}
+
+
+def test_a_batch_whose_workers_all_die_ends_with_the_runs_pending(tmp_path, monkeypatch, capsys):
+    """Every worker gone: the batch does not wait forever; it says so, records the runs not
+    finished as pending with the reason and writes the index."""
+    dd = pytest.importorskip("dask.distributed")
+    monkeypatch.setattr(batch, "run_one", _hanging_run)
+    _RELEASE.clear()
+    cluster = dd.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None)
+    try:
+        def close_worker():
+            time.sleep(1.0)
+            worker = next(iter(cluster.workers.values()))
+            cluster.sync(worker.close)
+
+        killer = threading.Thread(target=close_worker, daemon=True)
+        killer.start()
+        t0 = time.monotonic()
+        results = batch.run_batch(_spec([6, 7, 8]), tmp_path, cluster=cluster, progress=False,
+                                  no_worker_timeout=2.0)
+        assert time.monotonic() - t0 < 25
+    finally:
+        _RELEASE.set()
+        cluster.close()
+    assert len(results) == 3
+    for r in results.values():
+        assert r["status"] == "pending" and "no Dask worker was alive for 2 s" in r["error"]
+    assert "no Dask worker was alive for 2 s; 3 run(s) left pending" in capsys.readouterr().err
+    root = tmp_path / "dying"
+    index = (root / "index.html").read_text()
+    assert index.count("<tr>") == 4 and index.count("pending") >= 3
+    for run_id in results:
+        assert json.loads((root / run_id / "status.json").read_text())["status"] == "pending"
+
+
+def test_a_killed_worker_fails_its_run_only(tmp_path, monkeypatch):
+    """A run whose worker died more often than the scheduler allows (KilledWorker) is
+    recorded failed with the reason; the run on the healthy worker is recorded done; the
+    index is written; nothing raises."""
+    dd = pytest.importorskip("dask.distributed")
+    import cloudpickle
+    import dask
+
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    monkeypatch.setattr(batch, "run_one", _run_or_die)
+    try:
+        with dask.config.set({"distributed.scheduler.allowed-failures": 0,
+                              "distributed.scheduler.worker-saturation": 1.0}):
+            cluster = dd.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
+            try:
+                results = batch.run_batch(_spec([6, 7]), tmp_path, cluster=cluster, progress=False,
+                                          no_worker_timeout=20.0)
+            finally:
+                cluster.close()
+    finally:
+        cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
+    by_n = {r["params"]["grid_n"]: (k, r) for k, r in results.items()}
+    assert by_n[6][1]["status"] == "done"
+    killed_id, killed = by_n[7]
+    assert killed["status"] == "failed" and killed["error"].startswith("KilledWorker: the Dask worker running")
+    root = tmp_path / "dying"
+    assert json.loads((root / killed_id / "status.json").read_text())["status"] == "failed"
+    index = (root / "index.html").read_text()
+    assert index.count("<tr>") == 3 and "KilledWorker" in index
