@@ -19,6 +19,7 @@ parameters) and units; ``summary.png`` plots those against the swept parameter.
 
 from __future__ import annotations
 
+import asyncio
 import difflib
 import hashlib
 import html
@@ -28,8 +29,9 @@ import math
 import re
 import stat
 import sys
+import time
 import tomllib
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 from tqdm.auto import tqdm
@@ -284,13 +286,23 @@ def connect_scheduler(scheduler: str, timeout: float = CONNECT_TIMEOUT):
     naming the address) when it is malformed or does not answer within ``timeout`` s."""
     from dask.distributed import Client  # load time: dask (about 1 s), only with a scheduler
 
-    if not isinstance(scheduler, str) or not re.match(r"^(?:[a-z][a-z0-9+.-]*://)?[^\s/]+$", scheduler):
+    if not isinstance(scheduler, str) or not re.match(r"^\S{1,200}$", scheduler):
         raise SchedulerError(f"--scheduler {_short(scheduler)}: not a scheduler address (tcp://host:port)")
+    from distributed.comm import connect  # load time: as above
+
+    async def probe():
+        comm = await connect(scheduler, timeout=timeout)
+        await comm.close()
+
     try:
+        # a bare connection first: a Client that failed to connect would complain again
+        # when it is collected (its close times out)
+        with ThreadPoolExecutor(max_workers=1) as pool:  # its own event loop, also under Jupyter's
+            pool.submit(asyncio.run, probe()).result()
         return Client(scheduler, timeout=timeout)
     except Exception as exc:  # noqa: BLE001 - dask raises OSError, ValueError, TypeError, TimeoutError: one message
-        reason = " ".join(str(exc).split()) or type(exc).__name__
-        raise SchedulerError(f"--scheduler {scheduler}: cannot connect ({_short(reason, 200)})") from None
+        reason = " ".join(str(exc).split())[:200] or type(exc).__name__
+        raise SchedulerError(f"--scheduler {scheduler}: cannot connect ({reason})") from None
 
 
 def _live_workers(client) -> int | None:
@@ -308,7 +320,7 @@ def _task_failure(exc: BaseException) -> str:
         tries = getattr(exc, "allowed_failures", 0) + 1
         return (f"KilledWorker: the Dask worker running this run died ({tries} time(s), more than the "
                 f"scheduler's allowed failures); last worker {worker}")
-    return f"{type(exc).__name__}: {_short(' '.join(str(exc).split()), 300)}"
+    return f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}"
 
 
 def _run_distributed(client, pending: list[dict], args: list[tuple], results: dict, bar,
@@ -316,8 +328,6 @@ def _run_distributed(client, pending: list[dict], args: list[tuple], results: di
     """Submit every pending run and record each as it ends; a run whose task failed
     (KilledWorker, ...) is recorded failed with the reason; when no worker is alive for
     ``no_worker_timeout`` s, the runs not finished are recorded ``pending`` with the reason."""
-    import time
-
     futures = {client.submit(run_one, *a, pure=False): r for a, r in zip(args, pending)}
     waiting = dict(futures)
     since = None
@@ -371,12 +381,13 @@ def _write_status(run_dir: Path, status: dict) -> None:
 
 def run_batch(spec: str | Path | dict, out_root: str | Path = "reports/batch", scheduler: str | None = None,
               workers: int = 2, progress: bool = True, cluster=None,
-              no_worker_timeout: float = NO_WORKER_TIMEOUT) -> dict:
+              no_worker_timeout: float = NO_WORKER_TIMEOUT, connect_timeout: float = CONNECT_TIMEOUT) -> dict:
     """Run every grid point of the spec (a path, or a spec from :func:`load_spec`); skip
     runs already done; write the index (``batch_root(out_root, spec) / "index.html"``).
 
     ``scheduler``: a Dask scheduler address (``tcp://host:8786``; SchedulerError when it is
-    malformed or unreachable); ``cluster``: a Dask cluster object (tests use a
+    malformed or does not answer within ``connect_timeout`` s; raised before anything is
+    written); ``cluster``: a Dask cluster object (tests use a
     LocalCluster); otherwise local processes (``workers``). On Dask, a run whose worker
     died more often than the scheduler allows (``KilledWorker``) is recorded failed with
     the reason and the others go on; when no worker is alive for ``no_worker_timeout`` s,
@@ -385,48 +396,46 @@ def run_batch(spec: str | Path | dict, out_root: str | Path = "reports/batch", s
     """
 
     spec = spec if isinstance(spec, dict) else load_spec(spec)
-    root = batch_root(out_root, spec)
-    root.mkdir(parents=True, exist_ok=True)
-    runs = runs_of(spec)
-    results, pending = {}, []
-    for r in runs:
-        st = root / r["id"] / "status.json"
-        if st.exists() and json.loads(st.read_text()).get("status") == "done":
-            results[r["id"]] = json.loads(st.read_text())
-        else:
-            pending.append(r)
-    bar = tqdm(total=len(runs), initial=len(runs) - len(pending), desc=f"batch {spec['name']}", unit="run",
-               disable=not progress)
-    args = [(spec["notebooks"], r["params"], str(root / r["id"])) for r in pending]
+    # the scheduler first: an unreachable one fails before anything is written
+    client = connect_scheduler(scheduler, connect_timeout) if scheduler and cluster is None else None
     try:
-        if pending and (scheduler or cluster is not None):
-            if cluster is not None:
-                from dask.distributed import Client  # load time: dask (about 1 s), only with a scheduler
-                client = Client(cluster)
+        root = batch_root(out_root, spec)
+        root.mkdir(parents=True, exist_ok=True)
+        runs = runs_of(spec)
+        results, pending = {}, []
+        for r in runs:
+            st = root / r["id"] / "status.json"
+            if st.exists() and json.loads(st.read_text()).get("status") == "done":
+                results[r["id"]] = json.loads(st.read_text())
             else:
-                client = connect_scheduler(scheduler)
-            try:
+                pending.append(r)
+        args = [(spec["notebooks"], r["params"], str(root / r["id"])) for r in pending]
+        with tqdm(total=len(runs), initial=len(runs) - len(pending), desc=f"batch {spec['name']}", unit="run",
+                  disable=not progress) as bar:
+            if pending and (client is not None or cluster is not None):
+                if client is None:
+                    from dask.distributed import Client  # load time: dask (about 1 s), only with a scheduler
+                    client = Client(cluster)
                 _run_distributed(client, pending, args, results, bar, no_worker_timeout)
-            finally:
-                try:
-                    client.close(timeout=5)
-                except Exception:  # noqa: BLE001 - a lost scheduler: the client is gone anyway
-                    pass
-        elif pending:
-            with ProcessPoolExecutor(max_workers=max(1, workers)) as pool:
-                futures = {pool.submit(run_one, *a): r["id"] for a, r in zip(args, pending)}
-                for fut in as_completed(futures):
-                    try:
-                        results[futures[fut]] = fut.result()
-                    except Exception as exc:  # noqa: BLE001 - a worker process died (BrokenProcessPool): recorded
-                        r = next(q for q in pending if q["id"] == futures[fut])
-                        status = {"status": "failed", "params": r["params"], "metrics": {}, "notebook": None,
-                                  "cell": None, "error": _task_failure(exc)}
-                        results[r["id"]] = status
-                        _write_status(root / r["id"], status)
-                    bar.update(1)
+            elif pending:
+                with ProcessPoolExecutor(max_workers=max(1, workers)) as pool:
+                    futures = {pool.submit(run_one, *a): r for a, r in zip(args, pending)}
+                    for fut in as_completed(futures):
+                        r = futures[fut]
+                        try:
+                            results[r["id"]] = fut.result()
+                        except Exception as exc:  # noqa: BLE001 - a worker process died (BrokenProcessPool): recorded
+                            status = {"status": "failed", "params": r["params"], "metrics": {}, "notebook": None,
+                                      "cell": None, "error": _task_failure(exc)}
+                            results[r["id"]] = status
+                            _write_status(root / r["id"], status)
+                        bar.update(1)
     finally:
-        bar.close()
+        if client is not None:
+            try:
+                client.close(timeout=5)
+            except Exception:  # noqa: BLE001 - a lost scheduler: the client is gone anyway
+                pass
     write_index(root, runs, results, spec["notebooks"])
     return results
 
