@@ -23,6 +23,7 @@ import asyncio
 import difflib
 import hashlib
 import html
+import io
 import itertools
 import json
 import math
@@ -37,7 +38,7 @@ from pathlib import Path
 from tqdm.auto import tqdm
 
 from ..errors import LeglibError, SpecError
-from ..files.atomic import write_json_atomic
+from ..files.atomic import write_bytes_atomic, write_json_atomic
 from .run import NOTEBOOK_DIR, execute
 
 SPEC_KEYS = ("name", "notebooks", "parameters", "grid")
@@ -575,7 +576,7 @@ def write_index(root: Path, runs: list[dict], results: dict, notebooks: list[str
         cells.append(" ".join(links))
         lines.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
     lines.append("</table></body></html>")
-    (root / "index.html").write_text("\n".join(lines))
+    write_bytes_atomic(root / "index.html", "\n".join(lines).encode(), overwrite=True)
     if keys and chosen:
         n = len(chosen)
         ncol = min(n, 4)
@@ -601,6 +602,8 @@ def write_index(root: Path, runs: list[dict], results: dict, notebooks: list[str
             ax.set_visible(False)
         fig.suptitle(f"batch {root.name}: chosen metrics against {keys[0]}")
         fig.tight_layout()
-        fig.savefig(root / "summary.png", dpi=90)
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=90)
         plt.close(fig)
+        write_bytes_atomic(root / "summary.png", buf.getvalue(), overwrite=True)
     return root / "index.html"

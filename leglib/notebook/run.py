@@ -17,6 +17,7 @@ import warnings
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
+from ..files.atomic import oserror_naming, write_bytes_atomic
 from .progress import StageLog, clock
 
 REPO = Path(__file__).resolve().parents[2]
@@ -117,13 +118,16 @@ def execute(notebook: str | Path, out_dir: str | Path, parameters: dict | None =
                 raise
             warnings.warn(f"{notebook.name}: {type(exc).__name__}: {str(exc).splitlines()[0]}; running it "
                           f"once more", RuntimeWarning, stacklevel=2)
-        except BaseException:
+        except BaseException as exc:
             if log is not None:
                 log.finish(ok=False)
+            if isinstance(exc, OSError) and not isinstance(exc, FileNotFoundError):
+                # papermill writing the executed copy on a full or read-only disk: name it
+                raise oserror_naming(exc, out, "writing") from exc
             raise
     nb = nbformat.read(str(out), as_version=4)
     if add_widget_snapshots(nb):
-        nbformat.write(nb, str(out))
+        write_bytes_atomic(out, nbformat.writes(nb).encode(), overwrite=True)
     if html:
         to_html(out)
     return out
@@ -183,8 +187,7 @@ def to_html(executed: Path) -> Path:
     nb = nbformat.read(str(executed), as_version=4)
     body, _ = HTMLExporter().from_notebook_node(nb)
     path = Path(executed).with_suffix(".html")
-    path.write_text(body)
-    return path
+    return write_bytes_atomic(path, body.encode(), overwrite=True)
 
 
 # which notebooks read what another one writes under make run's defaults: 03 designs on
