@@ -106,3 +106,21 @@ def test_an_unwritable_out_is_one_line(tmp_path, capsys, command):
         assert _exit_code([*argv, "--out", str(out)]) == 2
         line = _one_error_line(capsys.readouterr().err)
         assert line.startswith(f"error: --out {out}") and reason in line
+
+
+def _quick_run(notebooks, params, out_dir):
+    return {"status": "done", "params": params, "metrics": {}}
+
+
+def test_batch_on_a_live_scheduler(tmp_path, monkeypatch, capsys):
+    """A scheduler that answers: the runs go to it and the index is written."""
+    dd = pytest.importorskip("dask.distributed")
+    from leglib.notebook import batch
+    monkeypatch.setattr(batch, "run_one", _quick_run)
+    spec = tmp_path / "s.toml"
+    spec.write_text(SPEC)
+    with dd.LocalCluster(n_workers=1, processes=False, protocol="tcp://", dashboard_address=None) as cluster:
+        code = main(["batch", str(spec), "--out", str(tmp_path / "out"), "--scheduler", cluster.scheduler_address])
+    out = capsys.readouterr().out
+    assert code == 0 and "2 runs done, 0 failed or not run" in out
+    assert (tmp_path / "out" / "x" / "index.html").exists()
