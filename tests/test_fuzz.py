@@ -468,3 +468,159 @@ def test_fuzz_step_response_arguments():
             if any_error(dev):
                 clear_errors(dev)
     assert ran >= 5 and refused >= 20, (ran, refused)
+
+
+# -- batch specs by value, parameters the batch sets, several problems at once ----------------
+
+_GRID_VALUES = [0, 0.0, 0.5, 0.50, 1, 1.0, 0.25, 2, 0.75, True, "0", -0.0]
+
+
+def test_fuzz_batch_spec_values_and_problems(tmp_path):
+    """Grids of values equal or not by value, parameters the batch sets, and several typos at
+    once: an accepted spec never runs one point twice nor takes a path the batch sets; a
+    refused one is one SpecError naming the file and every field it refuses."""
+    accepted = refused = 0
+    for k in range(80):
+        rng = _rng(9000 + k)
+        values = [_pick(rng, _GRID_VALUES) for _ in range(int(rng.integers(1, 5)))]
+        lines = ['name = "v"', 'notebooks = ["04_pid_sweeps"]', "[parameters]"]
+        bad_fields = []
+        if rng.random() < 0.25:
+            key = _pick(rng, ["figures_dir", "metrics_path"])
+            lines.append(f'{key} = "/tmp/{k}"')
+            bad_fields.append(f"parameters.{key}")
+        for _ in range(int(rng.integers(0, 3)) if rng.random() < 0.4 else 0):
+            key = _pick(rng, ["smok", "sede", "pos_nn", "plnt"])
+            if f"parameters.{key}" not in bad_fields:
+                lines.append(f"{key} = 1")
+                bad_fields.append(f"parameters.{key}")
+        lines += ["[grid]", f"payload_mass = {json.dumps(values)}"]
+        if rng.random() < 0.15:
+            lines.append('metrics_path = ["/a", "/b"]')
+            bad_fields.append("grid.metrics_path")
+        p = tmp_path / f"v{k}.toml"
+        p.write_text("\n".join(lines) + "\n")
+        numeric = [v for v in values if isinstance(v, (int, float)) and not isinstance(v, bool)]
+        valid_values = len(numeric) == len(values) and len(set(numeric)) == len(numeric)
+        try:
+            spec = batch.load_spec(p)
+        except batch.SpecError as exc:
+            refused += 1
+            msg = str(exc)
+            assert msg.startswith(str(p)) and len(msg) < MAX_MESSAGE + len(str(p)) and "\n" not in msg, msg
+            for field in bad_fields:
+                assert field in msg, (field, msg)
+            if not valid_values:
+                assert "grid.payload_mass" in msg, msg
+            if len(bad_fields) + (not valid_values) > 1:
+                assert " problems: " in msg, msg
+            continue
+        accepted += 1
+        assert not bad_fields and valid_values, (lines, spec)
+        runs = batch.runs_of(spec)
+        assert len(runs) == len(values) and len({r["id"] for r in runs}) == len(runs)
+        seen = [r["params"]["payload_mass"] for r in runs]
+        assert all(a != b for i, a in enumerate(seen) for b in seen[i + 1:])  # no point twice, by value
+        assert not any(key in r["params"] for r in runs for key in batch.BATCH_SET)
+    assert accepted >= 10 and refused >= 30, (accepted, refused)
+
+
+# -- command-line arguments --------------------------------------------------------------------
+
+def test_fuzz_cli_arguments(tmp_path, monkeypatch, capsys):
+    """Random, mostly bad command lines (payloads, plants, worker counts, schedulers, output
+    directories, specs): each either reaches its command with values in range, or ends with
+    exit code 2 and one error line on stderr; never a traceback. The commands' work is
+    replaced by a record of the call (the arguments are what is fuzzed)."""
+    from leglib.evaluation import robustness
+    from leglib.notebook import cli
+    from leglib.notebook import run as nbrun
+    from leglib.params import plant_names
+
+    calls = []
+
+    def fake_batch(spec, out, scheduler=None, **kw):
+        if scheduler is not None:
+            batch.connect_scheduler(scheduler, timeout=0.5)  # the real check; no address here answers
+        calls.append(("batch", kw["workers"]))
+        return {}
+
+    monkeypatch.setattr(batch, "run_batch", fake_batch)
+    monkeypatch.setattr(robustness, "run", lambda plants, payload, quick: calls.append(("rob", plants, payload)))
+    monkeypatch.setattr(robustness, "write", lambda table, out: _written(out))
+    monkeypatch.setattr(nbrun, "run_all", lambda out, smoke: calls.append(("run", out)) or [])
+    good_spec = tmp_path / "good.toml"
+    good_spec.write_text('name = "c"\nnotebooks = ["01_derivation"]\n[grid]\ngrid_n = [6, 7]\n')
+    bad_spec = tmp_path / "bad.toml"
+    bad_spec.write_text('name = "c"\nnotebook = ["01_derivation"]\n')
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    outs = [str(tmp_path / "out"), str(tmp_path / "o" / "deep"), str(blocker), str(blocker / "x")]
+    payloads = ["0", "0.3", "5", "5.01", "-0.1", "1e9", "nan", "-inf", "heavy", "", "0x10"]
+    workers = ["1", "2", "256", "0", "-1", "257", "2.5", "many"]
+    schedulers = [None, "nonsense", "foo://h:1", "tcp://", "a b", "", "tcp://[::1", "tls:///x"]
+    plants = plant_names() + ["nope", "", "../etc", "default "]
+    ran = refused = 0
+    for k in range(70):
+        rng = _rng(9500 + k)
+        cmd = _pick(rng, ["robustness", "batch", "run"])
+        argv, ok = [cmd], True
+        out = _pick(rng, outs)
+        if rng.random() < 0.8:
+            argv += ["--out", out]
+            ok &= "a_file" not in out
+        if cmd == "robustness":
+            if rng.random() < 0.7:
+                pay = _pick(rng, payloads)
+                argv += ["--payload", pay]
+                ok &= pay in ("0", "0.3", "5")
+            if rng.random() < 0.5:
+                names = [_pick(rng, plants) for _ in range(int(rng.integers(1, 3)))]
+                argv += ["--plants", *names]
+                ok &= all(n in plant_names() for n in names)
+        elif cmd == "batch":
+            spec = good_spec if rng.random() < 0.8 else bad_spec
+            argv.append(str(spec))
+            ok &= spec == good_spec
+            if rng.random() < 0.5:
+                w = _pick(rng, workers)
+                argv += ["--workers", w]
+                ok &= w in ("1", "2", "256")
+            if rng.random() < 0.5:
+                s = _pick(rng, schedulers)
+                if s is not None:
+                    argv += ["--scheduler", s]
+                    ok = False
+        elif rng.random() < 0.3:
+            argv.append("--smoke")
+        if rng.random() < 0.1:
+            argv.append(_pick(rng, ["--bogus", "-x", "extra"]))
+            ok = False
+        before = len(calls)
+        try:
+            code = cli.main(argv)
+        except SystemExit as exc:
+            code = exc.code
+        err = capsys.readouterr().err
+        assert "Traceback" not in err, (argv, err)
+        if ok:
+            ran += 1
+            assert code == 0 and len(calls) == before + 1, (argv, code, err)
+            if calls[-1][0] == "rob":
+                assert 0 <= calls[-1][2] <= cli.MAX_PAYLOAD
+            if calls[-1][0] == "batch":
+                assert 1 <= calls[-1][1] <= 256
+        else:
+            refused += 1
+            assert code == 2, (argv, code, err)
+            errors = [line for line in err.splitlines() if "error: " in line]
+            assert len(errors) == 1 and len(errors[0]) < 400, (argv, err)
+            assert not any(c[0] in ("rob", "run") for c in calls[before:]), argv  # nothing ran
+    assert ran >= 10 and refused >= 25, (ran, refused)
+
+
+def _written(out):
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "robustness.md").write_text("# table\n")
+    return out / "robustness.md"

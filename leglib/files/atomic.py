@@ -55,6 +55,15 @@ def _commit(tmp: Path, path: Path) -> None:
         tmp.unlink(missing_ok=True)
 
 
+def oserror_naming(exc: OSError, path: str | Path, doing: str) -> OSError:
+    """``exc`` (a full or read-only disk, no permission) as the same error naming ``path``."""
+    if exc.filename is not None and str(path) in str(exc):
+        return exc
+    new = type(exc)(exc.errno, f"{doing} {path}: {exc.strerror or exc}", str(path))
+    new.__cause__ = exc
+    return new
+
+
 def _fsync_dir(directory: Path) -> None:
     try:
         fd = os.open(directory, os.O_RDONLY)
@@ -98,9 +107,7 @@ def write_bytes_atomic(path: str | Path, data: bytes, overwrite: bool = False) -
     except FileNotFoundError:
         raise
     except OSError as exc:   # a full or read-only disk, no permission: say which file
-        if exc.filename is not None and str(path) in str(exc):
-            raise
-        raise type(exc)(exc.errno, f"writing {path}: {exc.strerror or exc}", str(path)) from exc
+        raise oserror_naming(exc, path, "writing") from exc
     try:
         if overwrite:
             os.replace(tmp, path)
@@ -110,6 +117,8 @@ def write_bytes_atomic(path: str | Path, data: bytes, overwrite: bool = False) -
         tmp.unlink(missing_ok=True)
         if isinstance(exc, FileExistsError):
             raise FileExistsError(f"{path}: exists; not overwriting") from None
+        if isinstance(exc, OSError):  # the directory's entry could not be made (a full disk, ...)
+            raise oserror_naming(exc, path, "committing") from exc
         raise
     deferred = _DEFERRED.get()
     if deferred is None:

@@ -19,22 +19,26 @@ parameters) and units; ``summary.png`` plots those against the swept parameter.
 
 from __future__ import annotations
 
+import asyncio
 import difflib
 import hashlib
 import html
+import io
 import itertools
 import json
 import math
 import re
 import stat
+import sys
+import time
 import tomllib
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 from tqdm.auto import tqdm
 
-from ..errors import SpecError
-from ..files.atomic import write_json_atomic
+from ..errors import LeglibError, SpecError
+from ..files.atomic import write_bytes_atomic, write_json_atomic
 from .run import NOTEBOOK_DIR, execute
 
 SPEC_KEYS = ("name", "notebooks", "parameters", "grid")
@@ -88,14 +92,49 @@ def _inspect(path: Path) -> dict:
     return _INSPECTED[key]
 
 
+# parameters a batch sets itself for every run (each run's own files under its directory)
+BATCH_SET = ("figures_dir", "metrics_path", "identified_path")
+MAX_MESSAGE = 560  # characters of a SpecError listing several problems
+
+
+def _value_key(v):
+    """A grid value by value: 0 and 0.0 are one value, True and 1 are not."""
+    if isinstance(v, bool):
+        return ("bool", v)
+    if isinstance(v, (int, float)):
+        return ("number", v)  # int and float equal by value hash alike
+    return (type(v).__name__, v)
+
+
+def _spec_error(path: Path, problems: list[str]) -> SpecError:
+    """One SpecError naming the spec file and every problem found (as many as fit)."""
+    if len(problems) == 1:
+        return SpecError(f"{path}: {problems[0]}")
+    head = f"{path}: {len(problems)} problems: "
+    shown, size = [], len(head)
+    for k, text in enumerate(problems):
+        text = text if len(text) <= 200 else text[:200] + "..."
+        rest = len(problems) - k - 1
+        tail = f"; and {rest} more" if rest else ""
+        if shown and size + len(text) + 2 + len(tail) > MAX_MESSAGE:
+            shown.append(f"and {len(problems) - k} more")
+            break
+        shown.append(text)
+        size += len(text) + 2
+    return SpecError(head + "; ".join(shown))
+
+
 def load_spec(path: str | Path) -> dict:
-    """Read and check a batch spec; SpecError names the file and the field.
+    """Read and check a batch spec; SpecError names the file and every field in error (all
+    problems found, in one message).
 
     Refused: unknown top-level keys (with a suggestion), a ``name`` that is not a plain
     directory name (letters, digits, ``.``, ``_``, ``-``; at most 64 characters; not
     ``.``/``..``), notebooks that do not exist, parameters no notebook of the spec takes,
-    values whose type differs from the notebook's parameter (an int where a float is
-    expected is fine), empty or repeated grid values, and more than MAX_RUNS runs. The
+    parameters the batch sets itself for each run (:data:`BATCH_SET`: ``figures_dir``,
+    ``metrics_path``, ``identified_path``), values whose type differs from the notebook's
+    parameter (an int where a float is expected is fine), empty grid values, values
+    repeated by value (``0`` and ``0.0`` are one value), and more than MAX_RUNS runs. The
     values' ranges are checked by each notebook's first cell.
     """
     path = Path(path)
@@ -104,55 +143,79 @@ def load_spec(path: str | Path) -> dict:
         spec = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SpecError(f"{path}: not valid TOML: {str(exc)[:200]}") from None
+    problems: list[str] = []
     for key in spec:
         if key not in SPEC_KEYS:
-            raise SpecError(f"{path}: unknown key {key!r}{_did_you_mean(key, SPEC_KEYS)}")
+            problems.append(f"unknown key {key!r}{_did_you_mean(key, SPEC_KEYS)}")
     name = spec.get("name")
     if not isinstance(name, str) or not NAME_RE.match(name) or name in (".", ".."):
-        raise SpecError(f"{path}: field 'name' must be a plain directory name (letters, digits, '.', "
+        problems.append("field 'name' must be a plain directory name (letters, digits, '.', "
                         f"'_', '-'; at most 64 characters; not '.' or '..'), got {_short(name)}")
     nbs = spec.get("notebooks")
-    if not isinstance(nbs, list) or not nbs:
-        raise SpecError(f"{path}: field 'notebooks' must be a non-empty list of notebook names")
-    for nb in nbs:
-        if not isinstance(nb, str) or not NAME_RE.match(nb):
-            raise SpecError(f"{path}: field 'notebooks': {_short(nb)} is not a notebook name")
-        if not (NOTEBOOK_DIR / f"{nb}.ipynb").is_file():
-            known = sorted(q.stem for q in NOTEBOOK_DIR.glob("*.ipynb"))
-            raise SpecError(f"{path}: notebook {nb!r} not found in {NOTEBOOK_DIR}{_did_you_mean(nb, known)}")
-    if len(set(nbs)) != len(nbs):
-        raise SpecError(f"{path}: field 'notebooks' names a notebook twice")
+    nbs_ok = isinstance(nbs, list) and bool(nbs)
+    if not nbs_ok:
+        problems.append("field 'notebooks' must be a non-empty list of notebook names")
+    else:
+        for nb in nbs:
+            if not isinstance(nb, str) or not NAME_RE.match(nb):
+                problems.append(f"field 'notebooks': {_short(nb)} is not a notebook name")
+                nbs_ok = False
+            elif not (NOTEBOOK_DIR / f"{nb}.ipynb").is_file():
+                known_nbs = sorted(q.stem for q in NOTEBOOK_DIR.glob("*.ipynb"))
+                problems.append(f"notebook {nb!r} not found in {NOTEBOOK_DIR}{_did_you_mean(nb, known_nbs)}")
+                nbs_ok = False
+        if nbs_ok and len(set(nbs)) != len(nbs):
+            problems.append("field 'notebooks' names a notebook twice")
     grid = spec.get("grid", {})
-    if not isinstance(grid, dict) or not all(isinstance(v, list) and v for v in grid.values()):
-        raise SpecError(f"{path}: field 'grid' must map parameter names to non-empty lists")
+    grid_ok = isinstance(grid, dict) and all(isinstance(v, list) and v for v in grid.values())
+    if not grid_ok:
+        problems.append("field 'grid' must map parameter names to non-empty lists")
     parameters = spec.get("parameters", {})
-    if not isinstance(parameters, dict):
-        raise SpecError(f"{path}: field 'parameters' must be a table")
-    inspected = [_inspect(NOTEBOOK_DIR / f"{nb}.ipynb") for nb in nbs]
-    known = set().union(*inspected)
-    types = {}
-    for params in inspected:
-        for k, v in params.items():
-            types.setdefault(k, v.get("inferred_type_name"))
-    for field in ("parameters", "grid"):
-        for key, value in spec.get(field, {}).items():
-            if key not in known:
-                raise SpecError(f"{path}: {field}.{key} is not a parameter of {', '.join(nbs)}"
-                                f"{_did_you_mean(key, known)}")
-            if field == "grid" and key in parameters:
-                raise SpecError(f"{path}: {key} is both in [parameters] and in [grid]")
-            values = value if field == "grid" else [value]
-            accepted = _TYPES.get(types.get(key))
-            for v in values:
-                bad_type = (isinstance(v, bool) and accepted != (bool,)) or \
-                    (accepted is not None and not isinstance(v, accepted))
-                if bad_type or not isinstance(v, (bool, int, float, str)):
-                    raise SpecError(f"{path}: {field}.{key} = {_short(v)}: expected "
-                                    f"{types.get(key) or 'a plain value'}")
-                if isinstance(v, float) and not math.isfinite(v):
-                    raise SpecError(f"{path}: {field}.{key} = {v!r}: not finite")
-            if field == "grid" and len({json.dumps(v) for v in values}) != len(values):
-                raise SpecError(f"{path}: grid.{key} repeats a value: {_short(values)}")
+    params_ok = isinstance(parameters, dict)
+    if not params_ok:
+        problems.append("field 'parameters' must be a table")
+    if nbs_ok:  # the notebooks' parameters are known: check every value against them
+        inspected = [_inspect(NOTEBOOK_DIR / f"{nb}.ipynb") for nb in dict.fromkeys(nbs)]
+        known = set().union(*inspected)
+        types = {}
+        for params in inspected:
+            for k, v in params.items():
+                types.setdefault(k, v.get("inferred_type_name"))
+        for field, table, ok in (("parameters", parameters, params_ok), ("grid", grid, grid_ok)):
+            if not ok:
+                continue
+            for key, value in table.items():
+                if key in BATCH_SET:
+                    problems.append(f"{field}.{key}: the batch sets it itself (each run's own, under "
+                                    f"its run directory); leave it out")
+                    continue
+                if key not in known:
+                    problems.append(f"{field}.{key} is not a parameter of {', '.join(nbs)}"
+                                    f"{_did_you_mean(key, known - set(BATCH_SET))}")
+                    continue
+                if field == "grid" and params_ok and key in parameters:
+                    problems.append(f"{key} is both in [parameters] and in [grid]")
+                    continue
+                values = value if field == "grid" else [value]
+                accepted = _TYPES.get(types.get(key))
+                typed = True
+                for v in values:
+                    bad_type = (isinstance(v, bool) and accepted != (bool,)) or \
+                        (accepted is not None and not isinstance(v, accepted))
+                    if bad_type or not isinstance(v, (bool, int, float, str)):
+                        problems.append(f"{field}.{key} = {_short(v)}: expected "
+                                        f"{types.get(key) or 'a plain value'}")
+                        typed = False
+                        break
+                    if isinstance(v, float) and not math.isfinite(v):
+                        problems.append(f"{field}.{key} = {v!r}: not finite")
+                        typed = False
+                        break
+                if typed and field == "grid" and len({_value_key(v) for v in values}) != len(values):
+                    problems.append(f"grid.{key} repeats a value: {_short(values)} (compared by value: "
+                                    f"0 and 0.0 are one value)")
+    if problems:
+        raise _spec_error(path, problems)
     n_runs = math.prod(len(v) for v in grid.values())
     if n_runs > MAX_RUNS:
         raise SpecError(f"{path}: the grid makes {n_runs} runs, more than {MAX_RUNS}")
@@ -211,48 +274,169 @@ def batch_root(out_root: str | Path, spec: dict) -> Path:
     return Path(out_root).resolve() / spec["name"]
 
 
+NO_WORKER_TIMEOUT = 120.0  # s a distributed batch waits while no Dask worker is alive
+CONNECT_TIMEOUT = 10.0  # s to reach a Dask scheduler
+
+
+class SchedulerError(LeglibError, ConnectionError):
+    """The Dask scheduler of a batch cannot be reached or its address is malformed."""
+
+
+def connect_scheduler(scheduler: str, timeout: float = CONNECT_TIMEOUT):
+    """A Dask ``Client`` of ``scheduler`` (``tcp://host:port``); SchedulerError (one line,
+    naming the address) when it is malformed or does not answer within ``timeout`` s."""
+    from dask.distributed import Client  # load time: dask (about 1 s), only with a scheduler
+
+    if not isinstance(scheduler, str) or not re.match(r"^\S{1,200}$", scheduler):
+        raise SchedulerError(f"--scheduler {_short(scheduler)}: not a scheduler address (tcp://host:port)")
+    from distributed.comm import connect  # load time: as above
+
+    async def probe():
+        comm = await connect(scheduler, timeout=timeout)
+        await comm.close()
+
+    try:
+        # a bare connection first: a Client that failed to connect would complain again
+        # when it is collected (its close times out)
+        with ThreadPoolExecutor(max_workers=1) as pool:  # its own event loop, also under Jupyter's
+            pool.submit(asyncio.run, probe()).result()
+        return Client(scheduler, timeout=timeout)
+    except Exception as exc:  # noqa: BLE001 - dask raises OSError, ValueError, TypeError, TimeoutError: one message
+        reason = " ".join(str(exc).split())[:200] or type(exc).__name__
+        raise SchedulerError(f"--scheduler {scheduler}: cannot connect ({reason})") from None
+
+
+def _live_workers(client) -> int | None:
+    """How many workers the scheduler has; None when the scheduler does not answer."""
+    try:
+        return len(client.scheduler_info(n_workers=-1).get("workers", {}))
+    except Exception:  # noqa: BLE001 - a lost scheduler: counted as no worker
+        return None
+
+
+def _task_failure(exc: BaseException) -> str:
+    """A one-line reason for a run whose Dask task failed (not a failing notebook)."""
+    if type(exc).__name__ == "KilledWorker":
+        worker = getattr(getattr(exc, "last_worker", None), "address", "?")
+        tries = getattr(exc, "allowed_failures", 0) + 1
+        return (f"KilledWorker: the Dask worker running this run died ({tries} time(s), more than the "
+                f"scheduler's allowed failures); last worker {worker}")
+    return f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}"
+
+
+def _run_distributed(client, pending: list[dict], args: list[tuple], results: dict, bar,
+                     no_worker_timeout: float, poll: float = 0.25) -> None:
+    """Submit every pending run and record each as it ends; a run whose task failed
+    (KilledWorker, ...) is recorded failed with the reason; when no worker is alive for
+    ``no_worker_timeout`` s, the runs not finished are recorded ``pending`` with the reason."""
+    futures = {client.submit(run_one, *a, pure=False): r for a, r in zip(args, pending)}
+    waiting = dict(futures)
+    since = None
+    while waiting:
+        ended = [f for f in waiting if f.done()]
+        for fut in ended:
+            r = waiting.pop(fut)
+            if fut.status == "finished":
+                results[r["id"]] = fut.result()
+            else:
+                try:
+                    exc = fut.exception()
+                except Exception as e:  # noqa: BLE001 - cancelled: its own exception
+                    exc = e
+                status = {"status": "failed", "params": r["params"], "metrics": {}, "notebook": None,
+                          "cell": None, "error": _task_failure(exc)}
+                results[r["id"]] = status
+                _write_status(Path(args[pending.index(r)][2]), status)
+            bar.update(1)
+        if ended or not waiting:
+            continue
+        n = _live_workers(client)
+        now = time.monotonic()
+        if n:
+            since = None
+        elif since is None:
+            since = now
+        elif now - since > no_worker_timeout:
+            what = "the scheduler did not answer" if n is None else "no Dask worker was alive"
+            reason = f"not run: {what} for {no_worker_timeout:g} s"
+            print(f"batch: {reason}; {len(waiting)} run(s) left pending", file=sys.stderr, flush=True)
+            for fut, r in waiting.items():
+                status = {"status": "pending", "params": r["params"], "metrics": {}, "notebook": None,
+                          "cell": None, "error": reason}
+                results[r["id"]] = status
+                _write_status(Path(args[pending.index(r)][2]), status)
+            try:
+                client.cancel(list(waiting))
+            except Exception:  # noqa: BLE001 - a lost scheduler: nothing to cancel
+                pass
+            return
+        time.sleep(poll)
+
+
+def _write_status(run_dir: Path, status: dict) -> None:
+    try:
+        write_json_atomic(run_dir / "status.json", status)
+    except OSError:
+        pass  # the index still shows it
+
+
 def run_batch(spec: str | Path | dict, out_root: str | Path = "reports/batch", scheduler: str | None = None,
-              workers: int = 2, progress: bool = True, cluster=None) -> dict:
+              workers: int = 2, progress: bool = True, cluster=None,
+              no_worker_timeout: float = NO_WORKER_TIMEOUT, connect_timeout: float = CONNECT_TIMEOUT) -> dict:
     """Run every grid point of the spec (a path, or a spec from :func:`load_spec`); skip
     runs already done; write the index (``batch_root(out_root, spec) / "index.html"``).
 
-    ``scheduler``: a Dask scheduler address (``tcp://host:8786``); ``cluster``: a Dask
-    cluster object (tests use a LocalCluster); otherwise local processes (``workers``).
-    Returns {run id: status}.
+    ``scheduler``: a Dask scheduler address (``tcp://host:8786``; SchedulerError when it is
+    malformed or does not answer within ``connect_timeout`` s; raised before anything is
+    written); ``cluster``: a Dask cluster object (tests use a
+    LocalCluster); otherwise local processes (``workers``). On Dask, a run whose worker
+    died more often than the scheduler allows (``KilledWorker``) is recorded failed with
+    the reason and the others go on; when no worker is alive for ``no_worker_timeout`` s,
+    the runs not finished are recorded ``pending`` with the reason and the index is
+    written. Returns {run id: status}.
     """
 
     spec = spec if isinstance(spec, dict) else load_spec(spec)
-    root = batch_root(out_root, spec)
-    root.mkdir(parents=True, exist_ok=True)
-    runs = runs_of(spec)
-    results, pending = {}, []
-    for r in runs:
-        st = root / r["id"] / "status.json"
-        if st.exists() and json.loads(st.read_text()).get("status") == "done":
-            results[r["id"]] = json.loads(st.read_text())
-        else:
-            pending.append(r)
-    bar = tqdm(total=len(runs), initial=len(runs) - len(pending), desc=f"batch {spec['name']}", unit="run",
-               disable=not progress)
-    args = [(spec["notebooks"], r["params"], str(root / r["id"])) for r in pending]
-    if pending and (scheduler or cluster is not None):
-        from dask.distributed import Client  # load time: dask (about 1 s), only with a scheduler
-        from dask.distributed import as_completed as dask_completed  # load time: as above
-        client = Client(cluster) if cluster is not None else Client(scheduler)
-        try:
-            futures = {client.submit(run_one, *a, pure=False): r["id"] for a, r in zip(args, pending)}
-            for fut in dask_completed(futures):
-                results[futures[fut]] = fut.result()
-                bar.update(1)
-        finally:
-            client.close()
-    elif pending:
-        with ProcessPoolExecutor(max_workers=max(1, workers)) as pool:
-            futures = {pool.submit(run_one, *a): r["id"] for a, r in zip(args, pending)}
-            for fut in as_completed(futures):
-                results[futures[fut]] = fut.result()
-                bar.update(1)
-    bar.close()
+    # the scheduler first: an unreachable one fails before anything is written
+    client = connect_scheduler(scheduler, connect_timeout) if scheduler and cluster is None else None
+    try:
+        root = batch_root(out_root, spec)
+        root.mkdir(parents=True, exist_ok=True)
+        runs = runs_of(spec)
+        results, pending = {}, []
+        for r in runs:
+            st = root / r["id"] / "status.json"
+            if st.exists() and json.loads(st.read_text()).get("status") == "done":
+                results[r["id"]] = json.loads(st.read_text())
+            else:
+                pending.append(r)
+        args = [(spec["notebooks"], r["params"], str(root / r["id"])) for r in pending]
+        with tqdm(total=len(runs), initial=len(runs) - len(pending), desc=f"batch {spec['name']}", unit="run",
+                  disable=not progress) as bar:
+            if pending and (client is not None or cluster is not None):
+                if client is None:
+                    from dask.distributed import Client  # load time: dask (about 1 s), only with a scheduler
+                    client = Client(cluster)
+                _run_distributed(client, pending, args, results, bar, no_worker_timeout)
+            elif pending:
+                with ProcessPoolExecutor(max_workers=max(1, workers)) as pool:
+                    futures = {pool.submit(run_one, *a): r for a, r in zip(args, pending)}
+                    for fut in as_completed(futures):
+                        r = futures[fut]
+                        try:
+                            results[r["id"]] = fut.result()
+                        except Exception as exc:  # noqa: BLE001 - a worker process died (BrokenProcessPool): recorded
+                            status = {"status": "failed", "params": r["params"], "metrics": {}, "notebook": None,
+                                      "cell": None, "error": _task_failure(exc)}
+                            results[r["id"]] = status
+                            _write_status(root / r["id"], status)
+                        bar.update(1)
+    finally:
+        if client is not None:
+            try:
+                client.close(timeout=5)
+            except Exception:  # noqa: BLE001 - a lost scheduler: the client is gone anyway
+                pass
     write_index(root, runs, results, spec["notebooks"])
     return results
 
@@ -392,7 +576,7 @@ def write_index(root: Path, runs: list[dict], results: dict, notebooks: list[str
         cells.append(" ".join(links))
         lines.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
     lines.append("</table></body></html>")
-    (root / "index.html").write_text("\n".join(lines))
+    write_bytes_atomic(root / "index.html", "\n".join(lines).encode(), overwrite=True)
     if keys and chosen:
         n = len(chosen)
         ncol = min(n, 4)
@@ -418,6 +602,8 @@ def write_index(root: Path, runs: list[dict], results: dict, notebooks: list[str
             ax.set_visible(False)
         fig.suptitle(f"batch {root.name}: chosen metrics against {keys[0]}")
         fig.tight_layout()
-        fig.savefig(root / "summary.png", dpi=90)
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=90)
         plt.close(fig)
+        write_bytes_atomic(root / "summary.png", buf.getvalue(), overwrite=True)
     return root / "index.html"

@@ -17,6 +17,7 @@ import warnings
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
+from ..files.atomic import oserror_naming, write_bytes_atomic
 from .offline import offline_notebook
 from .progress import StageLog, clock
 
@@ -118,13 +119,16 @@ def execute(notebook: str | Path, out_dir: str | Path, parameters: dict | None =
                 raise
             warnings.warn(f"{notebook.name}: {type(exc).__name__}: {str(exc).splitlines()[0]}; running it "
                           f"once more", RuntimeWarning, stacklevel=2)
-        except BaseException:
+        except BaseException as exc:
             if log is not None:
                 log.finish(ok=False)
+            if isinstance(exc, OSError) and not isinstance(exc, FileNotFoundError):
+                # papermill writing the executed copy on a full or read-only disk: name it
+                raise oserror_naming(exc, out, "writing") from exc
             raise
     nb = nbformat.read(str(out), as_version=4)
     if add_widget_snapshots(nb):
-        nbformat.write(nb, str(out))
+        write_bytes_atomic(out, nbformat.writes(nb).encode(), overwrite=True)
     if html:
         to_html(out)
     return out
@@ -186,8 +190,7 @@ def to_html(executed: Path) -> Path:
     offline_notebook(nb)  # maths as MathML, players without a CDN: the report works offline
     body, _ = HTMLExporter().from_notebook_node(nb)
     path = Path(executed).with_suffix(".html")
-    path.write_text(body)
-    return path
+    return write_bytes_atomic(path, body.encode(), overwrite=True)
 
 
 # which notebooks read what another one writes under make run's defaults: 03 designs on

@@ -10,6 +10,7 @@ against them); the call states only what types cannot say: ranges, choices, rela
 
 from __future__ import annotations
 
+import io
 import math
 import os
 import re
@@ -19,7 +20,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from ..errors import NotebookParameterError
-from ..files.atomic import write_json_atomic
+from ..files.atomic import write_bytes_atomic, write_json_atomic
 from ..params import load_plant
 from .run import REPO
 
@@ -209,12 +210,14 @@ def write_metrics(path: str | Path, **metrics) -> Path:
 
 
 def save_figure(fig, figures_dir: str | Path, name: str) -> Path:
-    """Save ``fig`` as ``<figures_dir>/<name>.png`` and return the path."""
+    """Save ``fig`` as ``<figures_dir>/<name>.png`` (whole or not at all; a full disk names
+    the file) and return the path."""
     out = Path(figures_dir)
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"{name}.png"
-    fig.savefig(path, dpi=110, bbox_inches="tight")
-    return path
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    return write_bytes_atomic(path, buf.getvalue(), overwrite=True)
 
 
 def matrix_comparison_markdown(name: str, ours, theirs, digits: int = 2) -> str:

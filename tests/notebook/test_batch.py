@@ -1,6 +1,10 @@
 """Batch re-runs: a 6-run grid on a Dask LocalCluster, failures reported, reruns skipped."""
 
 import json
+import os
+import sys
+import threading
+import time
 
 import pytest
 
@@ -103,6 +107,56 @@ def test_spec_refuses_unknown_keys_bad_names_and_types(tmp_path, text, message):
     assert len(str(err.value)) < 500
 
 
+@pytest.mark.parametrize("values", ["[0, 0.0]", "[0.5, 0.25, 0.50]", "[1, 1.0, 2]"])
+def test_grid_values_repeat_by_value(tmp_path, values):
+    """0 and 0.0 are one payload: a grid naming both would run the same point twice."""
+    p = tmp_path / "s.toml"
+    p.write_text(f'name = "x"\nnotebooks = ["04_pid_sweeps"]\n[grid]\npayload_mass = {values}\n')
+    with pytest.raises(batch.SpecError, match=r"grid\.payload_mass repeats a value") as err:
+        batch.load_spec(p)
+    assert str(p) in str(err.value)
+    p.write_text('name = "x"\nnotebooks = ["04_pid_sweeps"]\n[grid]\npayload_mass = [0, 0.5]\n')
+    assert len(batch.runs_of(batch.load_spec(p))) == 2
+
+
+@pytest.mark.parametrize("table,key", [("parameters", "figures_dir"), ("parameters", "metrics_path"),
+                                       ("grid", "figures_dir"), ("grid", "metrics_path")])
+def test_parameters_the_batch_sets_are_refused(tmp_path, table, key):
+    """A run's figures and metrics go to its own directory: a spec's own value would be
+    silently replaced, so it is refused with the reason."""
+    value = '"/tmp/mine"' if table == "parameters" else '["/tmp/a", "/tmp/b"]'
+    p = tmp_path / "s.toml"
+    p.write_text(f'name = "x"\nnotebooks = ["04_pid_sweeps"]\n[{table}]\n{key} = {value}\n')
+    with pytest.raises(batch.SpecError) as err:
+        batch.load_spec(p)
+    msg = str(err.value)
+    assert str(p) in msg and f"{table}.{key}" in msg and "the batch sets it" in msg
+
+
+def test_every_problem_of_a_spec_in_one_message(tmp_path):
+    """Three typos: one error that names the file and all three fields, not one per try."""
+    p = tmp_path / "s.toml"
+    p.write_text('name = "x"\nnotebook = ["04_pid_sweeps"]\nnotebooks = ["04_pid_sweeps"]\n'
+                 '[parameters]\nsmok = true\n[grid]\npaylod_mass = [0.0, 0.5]\n')
+    with pytest.raises(batch.SpecError) as err:
+        batch.load_spec(p)
+    msg = str(err.value)
+    assert msg.startswith(f"{p}: 3 problems: ")
+    assert "unknown key 'notebook'; did you mean 'notebooks'?" in msg
+    assert "parameters.smok is not a parameter" in msg and "did you mean 'smoke'?" in msg
+    assert "grid.paylod_mass is not a parameter" in msg and "did you mean 'payload_mass'?" in msg
+    assert "\n" not in msg and len(msg) < 600
+    # many problems: still one bounded message that says how many
+    lines = ['name = "a/b"', 'notebooks = ["04_pid_sweeps"]', "[parameters]"]
+    lines += [f"bogus_{k} = {k}" for k in range(40)]
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(batch.SpecError) as err:
+        batch.load_spec(p)
+    msg = str(err.value)
+    assert msg.startswith(f"{p}: 41 problems: ") and "field 'name'" in msg and "more" in msg
+    assert len(msg) < 600 + len(str(p))
+
+
 def test_spec_that_is_not_a_readable_utf8_file(tmp_path):
     p = tmp_path / "s.toml"
     p.write_bytes('name = "caf\u00e9"\nnotebooks = ["01_derivation"]\n'.encode("latin-1"))
@@ -150,3 +204,90 @@ def test_index_shows_the_payload_study_answer(tmp_path):
     assert (tmp_path / "summary.png").stat().st_size > 5000
     vals = batch.summary_values(results[runs[-1]["id"]])
     assert vals[("05_validation", "map method: worst error", "%")] == pytest.approx(2 * 0.01 * len(runs) * 100)
+
+
+# -- a distributed batch when workers die --------------------------------------------------------
+
+_RELEASE = threading.Event()
+
+
+def _hanging_run(notebooks, params, out_dir):
+    """A run that lasts until the test releases it (its worker is closed meanwhile)."""
+    _RELEASE.wait(60)
+    return {"status": "done", "params": params, "metrics": {}}
+
+
+def _run_or_die(notebooks, params, out_dir):
+    """A run that kills its worker process (grid_n 7) or finishes after a while."""
+    if params["grid_n"] == 7:
+        os._exit(1)
+    time.sleep(3.0)
+    return {"status": "done", "params": params, "metrics": {}}
+
+
+def _spec(values):
+    return {"name": "dying", "notebooks": ["01_derivation"], "parameters": {}, "grid": {"grid_n": values}}
+
+
+def test_a_batch_whose_workers_all_die_ends_with_the_runs_pending(tmp_path, monkeypatch, capsys):
+    """Every worker gone: the batch does not wait forever; it says so, records the runs not
+    finished as pending with the reason and writes the index."""
+    dd = pytest.importorskip("dask.distributed")
+    monkeypatch.setattr(batch, "run_one", _hanging_run)
+    _RELEASE.clear()
+    cluster = dd.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None)
+    try:
+        def close_worker():
+            time.sleep(1.0)
+            worker = next(iter(cluster.workers.values()))
+            cluster.sync(worker.close)
+
+        killer = threading.Thread(target=close_worker, daemon=True)
+        killer.start()
+        t0 = time.monotonic()
+        results = batch.run_batch(_spec([6, 7, 8]), tmp_path, cluster=cluster, progress=False,
+                                  no_worker_timeout=2.0)
+        assert time.monotonic() - t0 < 25
+    finally:
+        _RELEASE.set()
+        cluster.close()
+    assert len(results) == 3
+    for r in results.values():
+        assert r["status"] == "pending" and "no Dask worker was alive for 2 s" in r["error"]
+    assert "no Dask worker was alive for 2 s; 3 run(s) left pending" in capsys.readouterr().err
+    root = tmp_path / "dying"
+    index = (root / "index.html").read_text()
+    assert index.count("<tr>") == 4 and index.count("pending") >= 3
+    for run_id in results:
+        assert json.loads((root / run_id / "status.json").read_text())["status"] == "pending"
+
+
+def test_a_killed_worker_fails_its_run_only(tmp_path, monkeypatch):
+    """A run whose worker died more often than the scheduler allows (KilledWorker) is
+    recorded failed with the reason; the run on the healthy worker is recorded done; the
+    index is written; nothing raises."""
+    dd = pytest.importorskip("dask.distributed")
+    import cloudpickle
+    import dask
+
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    monkeypatch.setattr(batch, "run_one", _run_or_die)
+    try:
+        with dask.config.set({"distributed.scheduler.allowed-failures": 0,
+                              "distributed.scheduler.worker-saturation": 1.0}):
+            cluster = dd.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
+            try:
+                results = batch.run_batch(_spec([6, 7]), tmp_path, cluster=cluster, progress=False,
+                                          no_worker_timeout=20.0)
+            finally:
+                cluster.close()
+    finally:
+        cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
+    by_n = {r["params"]["grid_n"]: (k, r) for k, r in results.items()}
+    assert by_n[6][1]["status"] == "done"
+    killed_id, killed = by_n[7]
+    assert killed["status"] == "failed" and killed["error"].startswith("KilledWorker: the Dask worker running")
+    root = tmp_path / "dying"
+    assert json.loads((root / killed_id / "status.json").read_text())["status"] == "failed"
+    index = (root / "index.html").read_text()
+    assert index.count("<tr>") == 3 and "KilledWorker" in index

@@ -1,0 +1,126 @@
+"""The command line's bad arguments: one line on stderr, exit code 2, no traceback; --help
+lists the choices and defaults."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from leglib.notebook.cli import main
+from leglib.params import plant_names
+
+REPO = Path(__file__).resolve().parents[2]
+SPEC = 'name = "x"\nnotebooks = ["01_derivation"]\n[grid]\ngrid_n = [6, 7]\n'
+
+
+def _exit_code(argv):
+    try:
+        return main(argv)
+    except SystemExit as exc:  # argparse's own errors and --help
+        return exc.code
+
+
+def _one_error_line(err: str) -> str:
+    assert "Traceback" not in err and err.strip(), err
+    last = err.strip().splitlines()[-1]
+    assert "error: " in last
+    return last
+
+
+def test_help_lists_the_choices_and_defaults(capsys):
+    assert _exit_code(["robustness", "--help"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    names = plant_names()
+    assert names and all(n in out for n in names)
+    assert "(default: reports/robustness)" in out and "0 to 5" in out and "(default: 0)" in out
+    assert _exit_code(["batch", "--help"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    for text in ("(default: reports/batch)", "(default: 2)", "(default: none, local processes)",
+                 "(default: 10 s)", "(default: 120 s)"):
+        assert text in out, text
+    assert _exit_code(["run", "--help"]) == 0
+    assert "(default: reports)" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("payload", ["1e9", "-1", "nan", "inf", "heavy"])
+def test_robustness_refuses_a_payload_out_of_range(capsys, payload):
+    assert _exit_code(["robustness", "--payload", payload, "--out", "/nonexistent/never"]) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert "argument --payload" in line and payload in line
+
+
+def test_robustness_refuses_an_unknown_plant(capsys):
+    assert _exit_code(["robustness", "--plants", "default", "nope"]) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert "invalid choice: 'nope'" in line and "default" in line
+
+
+@pytest.mark.parametrize("value", ["0", "-3", "many"])
+def test_batch_refuses_a_worker_count(tmp_path, capsys, value):
+    spec = tmp_path / "s.toml"
+    spec.write_text(SPEC)
+    assert _exit_code(["batch", str(spec), "--workers", value]) == 2
+    assert "argument --workers" in _one_error_line(capsys.readouterr().err)
+
+
+@pytest.mark.parametrize("address,message", [
+    ("foo://host:1", "unknown address scheme 'foo'"),
+    ("nonsense", "missing port number"),
+    ("tcp://a b:1", "not a scheduler address"),
+    ("tcp://127.0.0.1:1", "Timed out trying to connect"),
+])
+def test_batch_reports_a_bad_scheduler_in_one_line(tmp_path, capsys, address, message):
+    spec = tmp_path / "s.toml"
+    spec.write_text(SPEC)
+    out = tmp_path / "out"
+    code = _exit_code(["batch", str(spec), "--out", str(out), "--scheduler", address, "--connect-timeout", "1"])
+    line = _one_error_line(capsys.readouterr().err)
+    assert code == 2
+    assert line.startswith(f"error: --scheduler {address}") or line.startswith(f"error: --scheduler {address!r}")
+    assert message in line
+    assert not (out / "x").exists()  # nothing ran
+
+
+def test_an_unreachable_scheduler_from_the_shell(tmp_path):
+    """The whole command: one line on stderr, exit code 2, nothing complaining at exit."""
+    spec = tmp_path / "s.toml"
+    spec.write_text(SPEC)
+    proc = subprocess.run([sys.executable, "-m", "leglib", "batch", str(spec), "--out", str(tmp_path / "out"),
+                           "--scheduler", "tcp://127.0.0.1:1", "--connect-timeout", "1"],
+                          capture_output=True, text=True, timeout=120, cwd=REPO)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        "error: --scheduler tcp://127.0.0.1:1: cannot connect (Timed out trying to connect to "
+        "tcp://127.0.0.1:1 after 1 s)"], proc.stderr
+
+
+@pytest.mark.parametrize("command", [["run"], ["batch", "SPEC"], ["robustness"]])
+def test_an_unwritable_out_is_one_line(tmp_path, capsys, command):
+    spec = tmp_path / "s.toml"
+    spec.write_text(SPEC)
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    argv = [str(spec) if a == "SPEC" else a for a in command]
+    for out, reason in ((blocker / "out", "Not a directory"), (blocker, "exists and is not a directory")):
+        assert _exit_code([*argv, "--out", str(out)]) == 2
+        line = _one_error_line(capsys.readouterr().err)
+        assert line.startswith(f"error: --out {out}") and reason in line
+
+
+def _quick_run(notebooks, params, out_dir):
+    return {"status": "done", "params": params, "metrics": {}}
+
+
+def test_batch_on_a_live_scheduler(tmp_path, monkeypatch, capsys):
+    """A scheduler that answers: the runs go to it and the index is written."""
+    dd = pytest.importorskip("dask.distributed")
+    from leglib.notebook import batch
+    monkeypatch.setattr(batch, "run_one", _quick_run)
+    spec = tmp_path / "s.toml"
+    spec.write_text(SPEC)
+    with dd.LocalCluster(n_workers=1, processes=False, protocol="tcp://", dashboard_address=None) as cluster:
+        code = main(["batch", str(spec), "--out", str(tmp_path / "out"), "--scheduler", cluster.scheduler_address])
+    out = capsys.readouterr().out
+    assert code == 0 and "2 runs done, 0 failed or not run" in out
+    assert (tmp_path / "out" / "x" / "index.html").exists()
