@@ -538,6 +538,7 @@ def test_fuzz_cli_arguments(tmp_path, monkeypatch, capsys):
     from leglib.params import plant_names
 
     calls = []
+    monkeypatch.chdir(tmp_path)  # the commands' default --out are relative: here, not in the repository
 
     def fake_batch(spec, out, scheduler=None, **kw):
         if scheduler is not None:
