@@ -23,7 +23,11 @@ $(STAMP): environment.txt pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -r environment.txt
-	$(BIN)/python -m pip install --quiet --no-deps -e .
+	@# setuptools prints a ten-line notice on every editable install (a folder in the working
+	@# directory named like the package may shadow it: here that folder is the package itself);
+	@# its output is shown in full only when the install fails
+	@out=$$($(BIN)/python -m pip install --quiet --no-deps -e . 2>&1) || { echo "$$out"; exit 1; }; \
+	  echo "leglib installed editable from $$(pwd) (setuptools' notice about a folder named like the package is about leglib/ itself)"
 	touch $(STAMP)
 
 # System packages, installed with apt-get when missing and we are root (otherwise a warning):
