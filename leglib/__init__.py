@@ -21,7 +21,7 @@ the twin                :class:`Twin`
 errors                  :class:`LeglibError` (every leglib error derives from it)
 ======================  ======================================================================
 
-The layers below it, one direction only (``tests/test_layers.py``): :mod:`leglib.params`,
+The layers below it, one direction only (``tests/test_layers.py``): :mod:`leglib.params`, :mod:`leglib.checks`,
 :mod:`leglib.errors` -> :mod:`leglib.model` -> :mod:`leglib.plots` -> :mod:`leglib.twin` ->
 :mod:`leglib.device` -> :mod:`leglib.files` -> :mod:`leglib.experiments` ->
 :mod:`leglib.identify` -> :mod:`leglib.design` -> :mod:`leglib.thesis`,

@@ -13,7 +13,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent / "leglib"
 
 LAYERS = [
-    ("leglib._version", "leglib.errors", "leglib.kernelmath", "leglib.abort", "leglib.params"),
+    ("leglib._version", "leglib.errors", "leglib.checks", "leglib.kernelmath", "leglib.abort", "leglib.params"),
     ("leglib.model",),
     ("leglib.plots",),
     ("leglib.twin",),

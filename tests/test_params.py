@@ -150,3 +150,40 @@ def test_parameter_file_that_is_not_a_utf8_regular_file(tmp_path):
     p.write_bytes(b"# caf\xe9\n")
     with pytest.raises(ParameterError, match=r"latin.toml:1: not UTF-8 text \(byte 0xe9\)"):
         load_leg(p)
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda: load_odrive_config("thesis", current_lim=1e9),
+     "field 'config.current_lim' = 1e+09 A is implausible: it must be at most 60 (the ODrive v3.6's current sense"),
+    (lambda: load_odrive_config("thesis", max_pos_gain=1e12),
+     "field 'experiment.max_pos_gain' = 1e+12 (turn/s)/turn is implausible: it must be at most 1000"),
+    (lambda: load_odrive_config("thesis", step_vel_limit=1e9), "field 'experiment.step_vel_limit' = 1e+09 turn/s"),
+    (lambda: load_odrive_config("thesis", cpr=1), "field 'config.cpr' = 1 count/turn is implausible"),
+    (lambda: load_leg("thesis", gear_ratio=1e-300), "field 'drive.gear_ratio' = 1e-300 - is implausible: it must "
+                                                     "be [0.1, 100]"),
+    (lambda: load_leg("thesis", encoder_cpr=1), "field 'drive.encoder_cpr' = 1 count/turn is implausible: it must "
+                                                 "be [12, 1.67772e+07]"),
+])
+def test_implausible_overrides_are_refused(call, message):
+    with pytest.raises(ParameterError) as err:
+        call()
+    assert message in str(err.value) and "(keyword override)" in str(err.value)
+
+
+def test_implausible_plant_overrides_are_refused():
+    from leglib.params import load_plant
+    with pytest.raises(ParameterError, match=r"plant_default.toml \(keyword override\): field 'scale.payload_mass' "
+                                             r"= 1e\+09 kg is implausible: it must be at most 5"):
+        load_plant("default", payload_mass=1e9)
+    # each transaction advances the twin by the latency: 1e6 s would make connect never return
+    with pytest.raises(ParameterError, match=r"field 'sensing.usb_latency' = 1e\+06 s is implausible: it must be "
+                                             r"at most 0.1"):
+        load_plant("default", usb_latency=1e6)
+    assert load_plant("default", payload_mass=2.0, usb_latency=0.05).usb_latency == 0.05
+
+
+def test_implausible_file_value_is_refused_at_its_line(tmp_path):
+    bad = _variant_of(tmp_path, "odrive_thesis", "current_lim = { value = 10.0", "current_lim = { value = 1e9")
+    with pytest.raises(ParameterError, match=r"odrive_thesis_bad.toml:4: field 'config.current_lim' = 1e\+09 A is "
+                                             r"implausible"):
+        load_odrive_config(bad)

@@ -26,19 +26,32 @@ import datetime as _dt
 import json
 import math
 import os
+import stat
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from .. import checks
 from .._version import provenance as _prov
 from ..errors import DesignFileError
+from ..params import OdriveConfig, load_odrive_config
 from .statefeedback import StateFeedback
 
 FORMAT = 1
 KINDS = ("state_feedback", "cascade_gains")
 
+# a design file is a few kilobytes; anything far larger is not one
+MAX_BYTES = 1 << 20
+# the largest magnitude of any matrix entry of a state-feedback design (the thesis's are
+# below 1e3); beyond it a value is a corrupted file, not a design
+MAX_ENTRY = 1e9
+# how closely the eigenvalues of A - B K (A - L C) must match the stored poles (observer
+# poles), relative to the largest pole: place() reaches 1e-8 on the thesis's design
+POLE_TOLERANCE = 1e-5
+# the target, predicted and measured step dynamics of a gain design
+MAX_ZETA, MAX_FN_HZ = 100.0, 1000.0
 
 
 
@@ -141,10 +154,14 @@ def _bad(path, name: str, why: str) -> DesignFileError:
     return DesignFileError(f"{path}: field {name!r} {why}")
 
 
-def _number(path, name: str, v) -> float:
+def _number(path, name: str, v, low: float | None = None, high: float | None = None,
+            low_open: bool = False) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
         raise _bad(path, name, f"must be a finite number, got {v!r}")
-    return float(v)
+    try:
+        return checks.number(v, "", DesignFileError, low=low, high=high, low_open=low_open)
+    except DesignFileError as exc:
+        raise _bad(path, name, str(exc).strip()) from None
 
 
 def _array_in(path, name: str, v, shape: tuple, allow_complex: bool = False) -> np.ndarray:
@@ -156,24 +173,37 @@ def _array_in(path, name: str, v, shape: tuple, allow_complex: bool = False) -> 
         re = _array_in(path, f"{name}.re", v["re"], shape)
         im = _array_in(path, f"{name}.im", v["im"], re.shape)
         return re + 1j * im
+    leaf = _bad_leaf(v)
+    if leaf is not None:
+        raise _bad(path, name, f"must be a {desc} array of numbers, got {leaf!r} in it")
     try:
         a = np.array(v, dtype=float)
     except (TypeError, ValueError):
         raise _bad(path, name, f"must be a {desc} array of numbers, got {v!r}") from None
-    if a.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, a.shape)) or \
-            _has_bool(v):
+    if a.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, a.shape)):
         raise _bad(path, name, f"must be a {desc} array of numbers, got shape {a.shape}")
     if not np.all(np.isfinite(a)):
         raise _bad(path, name, "must hold finite numbers only")
+    if np.any(np.abs(a) > MAX_ENTRY):
+        raise _bad(path, name, f"holds {float(np.max(np.abs(a))):.3g}: no entry of a design exceeds "
+                               f"{MAX_ENTRY:g} in magnitude")
     return a
 
 
-def _has_bool(v) -> bool:
-    if isinstance(v, bool):
-        return True
+def _bad_leaf(v):
+    """The first value in nested lists ``v`` that is not a number (a bool, a string, an
+    object, null), or None when they are all numbers."""
     if isinstance(v, list):
-        return any(_has_bool(x) for x in v)
-    return False
+        for x in v:
+            bad = _bad_leaf(x)
+            if bad is not None:
+                return bad
+        return None
+    if v is None:      # null: NaN or inf when saved; refused as not finite
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return v
+    return None
 
 
 def _get(path, data: dict, name: str, kinds=None):
@@ -261,15 +291,50 @@ def save(path: str | Path, design, *, observer_factor: float | None = None, line
     return path
 
 
+def _read_text(path: Path) -> str:
+    """The text of a regular file of at most :data:`MAX_BYTES`; DesignFileError otherwise
+    (a directory, a FIFO or a device is never opened for reading, so none can block)."""
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        raise DesignFileError(f"{path}: no such design file") from None
+    except OSError as exc:
+        raise DesignFileError(f"{path}: cannot read design file ({exc.strerror})") from None
+    if not stat.S_ISREG(st.st_mode):
+        what = "a directory" if stat.S_ISDIR(st.st_mode) else "not a regular file"
+        raise DesignFileError(f"{path}: {what}; a design file is a regular JSON file")
+    if st.st_size > MAX_BYTES:
+        raise DesignFileError(f"{path}: {st.st_size} bytes; a design file is at most {MAX_BYTES}")
+    try:
+        # O_NONBLOCK: a file swapped for a FIFO after the stat cannot block the open
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+        with os.fdopen(fd, "rb") as fh:
+            if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
+                raise DesignFileError(f"{path}: not a regular file; a design file is a regular JSON file")
+            raw = fh.read(MAX_BYTES + 1)
+    except OSError as exc:
+        raise DesignFileError(f"{path}: cannot read design file ({exc.strerror})") from None
+    if len(raw) > MAX_BYTES:
+        raise DesignFileError(f"{path}: more than {MAX_BYTES} bytes; a design file is at most {MAX_BYTES}")
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise DesignFileError(f"{path}:{line}: not UTF-8 text (byte 0x{raw[exc.start]:02x})") from None
+
+
 def read(path: str | Path) -> dict:
     """The raw content of a design file, its ``kind``, ``format`` and ``provenance`` checked."""
     path = Path(path)
+    text = _read_text(path)
     try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise DesignFileError(f"{path}: no such design file") from None
+        data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise DesignFileError(f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})") from None
+    except RecursionError:
+        raise DesignFileError(f"{path}: not a design file: its JSON is nested too deeply") from None
+    except ValueError as exc:    # an integer of more digits than Python converts
+        raise DesignFileError(f"{path}: not a design file: {exc}") from None
     if not isinstance(data, dict):
         raise DesignFileError(f"{path}: a design file holds one JSON object, got {type(data).__name__}")
     kind = _get(path, data, "kind", str)
@@ -307,7 +372,7 @@ def _load_state_feedback(path, data):
         raise _bad(path, "linearization.about", f"must be an object, got {lin['about']!r}")
     poles = _array_in(path, "poles", _get(path, data, "poles"), (n,), allow_complex=True)
     obs = _array_in(path, "observer_poles", _get(path, data, "observer_poles"), (n,), allow_complex=True)
-    _number(path, "observer_factor", _get(path, data, "observer_factor"))
+    _number(path, "observer_factor", _get(path, data, "observer_factor"), low=0.0, low_open=True)
     K = _array_in(path, "K", _get(path, data, "K"), (m, n))
     L = _array_in(path, "L", _get(path, data, "L"), (n, p))
     Nbar = _array_in(path, "Nbar", _get(path, data, "Nbar"), (m, p))
@@ -323,8 +388,35 @@ def _load_state_feedback(path, data):
         if isinstance(r, bool) or not isinstance(r, int) or not 0 <= r <= n:
             raise _bad(path, name, f"must be an integer in [0, {n}], got {r!r}")
         ranks[name] = r
+    for name, pl in (("poles", poles), ("observer_poles", obs), ("integral_poles", ip)):
+        if pl is not None and np.any(pl.real >= 0):
+            raise _bad(path, name, f"holds {pl[pl.real >= 0]}, not in the open left half plane: the "
+                                   f"closed loop would be unstable")
+    if Ki is None:
+        _check_placed(path, "K", A - B @ K, poles, "A - B K", "'poles'")
+    else:
+        Aa = np.block([[A, np.zeros((n, p))], [C, np.zeros((p, p))]])
+        Ba = np.vstack([B, np.zeros((p, m))])
+        _check_placed(path, "K", Aa - Ba @ np.hstack([K, Ki]), np.concatenate([poles, ip]),
+                      "A - B K with the integrators (Ki)", "'poles' and 'integral_poles'")
+    _check_placed(path, "L", A - L @ C, obs, "A - L C", "'observer_poles'")
     return StateFeedback(sys=control.ss(A, B, C, D), poles=poles, observer_poles=obs, K=K, L=L, Nbar=Nbar, Ki=Ki,
                   integral_poles=ip, **ranks)
+
+
+def _check_placed(path, name: str, closed: np.ndarray, poles: np.ndarray, what: str, pole_field: str) -> None:
+    """The eigenvalues of ``closed`` are ``poles`` (each matched to its nearest, within
+    :data:`POLE_TOLERANCE` of the largest pole): the gain ``name`` places the file's poles."""
+    eig = list(np.linalg.eigvals(closed))
+    scale = max(1.0, float(np.max(np.abs(poles))))
+    worst = 0.0
+    for pole in poles:
+        k = int(np.argmin([abs(e - pole) for e in eig]))
+        worst = max(worst, abs(eig.pop(k) - pole) / scale)
+    if not worst <= POLE_TOLERANCE:
+        got = ", ".join(f"{complex(e):.4g}" for e in np.sort_complex(np.linalg.eigvals(closed)))
+        raise _bad(path, name, f"does not place the file's {pole_field}: the eigenvalues of {what} are "
+                               f"{got} (off by {worst:.2g} relative to the largest pole)")
 
 
 def _zeta_fn(path, data, name, optional: bool):
@@ -333,7 +425,8 @@ def _zeta_fn(path, data, name, optional: bool):
         return None
     if not isinstance(v, dict):
         raise _bad(path, name, f"must be an object with 'zeta' and 'fn_hz', got {v!r}")
-    return tuple(_number(path, f"{name}.{k}", _field(path, v, k, name)) for k in ("zeta", "fn_hz"))
+    return tuple(_number(path, f"{name}.{k}", _field(path, v, k, name), low=0.0, low_open=True, high=high)
+                 for k, high in (("zeta", MAX_ZETA), ("fn_hz", MAX_FN_HZ)))
 
 
 def _field(path, obj: dict, key: str, parent: str):
@@ -342,26 +435,37 @@ def _field(path, obj: dict, key: str, parent: str):
     return obj[key]
 
 
-def _load_gains(path, data) -> GainDesign:
+def _load_gains(path, data, config: OdriveConfig) -> GainDesign:
     g = _get(path, data, "gains", dict)
-    gains = tuple(_number(path, f"gains.{k}", _field(path, g, k, "gains"))
-                  for k in ("pos_gain", "vel_gain", "vel_integrator_gain"))
-    if min(gains) < 0:
-        raise _bad(path, "gains", f"must not be negative, got {gains}")
-    return GainDesign(target=_zeta_fn(path, data, "target", False), gains=gains,
+    gains = []
+    for k in ("pos_gain", "vel_gain", "vel_integrator_gain"):
+        v = _number(path, f"gains.{k}", _field(path, g, k, "gains"))
+        if v < 0:
+            raise _bad(path, "gains", f"must not be negative, got {k} = {v!r}")
+        high = getattr(config, f"max_{k}")
+        if v > high:
+            raise _bad(path, f"gains.{k}", f"= {v:g} is beyond the configured maximum {high:g} "
+                                           f"({config.source_file}, [experiment] max_{k})")
+        gains.append(v)
+    return GainDesign(target=_zeta_fn(path, data, "target", False), gains=tuple(gains),
                       method=_get(path, data, "method", str),
                       predicted=_zeta_fn(path, data, "predicted", True),
                       measured=_zeta_fn(path, data, "measured", True),
                       source=_get(path, data, "source", dict))
 
 
-def load(path: str | Path, kind: str | None = None):
-    """Read a design written by :func:`save`.
+def load(path: str | Path, kind: str | None = None, config: str | Path | OdriveConfig = "thesis"):
+    """Read a design written by :func:`save`, checked as a design: every number finite and of
+    a sane size, the poles stable, K (and Ki) placing the file's poles and L its observer
+    poles, ``observer_factor`` positive, cascade gains within ``config``'s maxima, the target
+    and measured zeta and fn positive.
 
     Parameters
     ----------
-    path : the design file
+    path : the design file (a regular file of at most :data:`MAX_BYTES`)
     kind : None (either), ``"state_feedback"`` or ``"cascade_gains"``: the kind expected
+    config : the ODrive configuration whose ``max_pos_gain``, ``max_vel_gain`` and
+        ``max_vel_integrator_gain`` bound a cascade design's gains (name, path or OdriveConfig)
 
     Returns
     -------
@@ -373,14 +477,14 @@ def load(path: str | Path, kind: str | None = None):
     DesignFileError
         naming the file and the field that is missing or malformed.
     """
+    if kind is not None and kind not in KINDS:
+        raise ValueError(f"kind must be one of {KINDS} or None, got {kind!r}")
     data = read(path)
     if kind is not None and data["kind"] != kind:
-        if kind not in KINDS:
-            raise ValueError(f"kind must be one of {KINDS} or None, got {kind!r}")
         raise _bad(path, "kind", f"is {data['kind']!r}, but a {kind!r} design is needed here")
     if data["kind"] == "state_feedback":
         return _load_state_feedback(Path(path), data)
-    return _load_gains(Path(path), data)
+    return _load_gains(Path(path), data, config if isinstance(config, OdriveConfig) else load_odrive_config(config))
 
 
 def same(a, b) -> bool:

@@ -20,14 +20,19 @@ import control
 import numpy as np
 from scipy.linalg import expm
 
+from .. import checks, plots
 from .. import model as M
-from .. import plots
 from ..device.session import as_device
 from ..errors import PoleError
 from ..experiments.torque import torque_loop
 from ..params import LegParams
 
 THESIS_POLES = (-7.0, -7.007, -7.014, -7.021)
+
+# the longest closed loop :func:`simulate_closed_loop` runs (the thesis's is 4.5 s), and the
+# most controller samples: it steps the nonlinear leg in Python, about 1 ms a sample
+MAX_DURATION = 600.0   # s
+MAX_SAMPLES = 300_000
 
 
 
@@ -38,7 +43,12 @@ def check_poles(poles, n: int, rank_b: int, what: str = "poles") -> np.ndarray:
     python-control's ``place`` (scipy's YT algorithm) cannot place a pole repeated more
     than rank(B) times; the thesis spread its poles (-7, -7.007, ...) for that reason.
     """
-    p = np.asarray(poles, dtype=complex).ravel()
+    a = np.asarray(poles) if not isinstance(poles, (str, bytes)) else np.asarray([poles])
+    if a.dtype.kind not in "iufc" or isinstance(poles, (bool, np.bool_)):
+        raise PoleError(f"{what}: must be numbers (real or complex), got {poles!r}")
+    if a.ndim != 1:
+        raise PoleError(f"{what}: must be a flat sequence of {n} poles, got an array of shape {a.shape}")
+    p = a.astype(complex)
     if p.size != n:
         raise PoleError(f"{what}: {p.size} given, the system has {n} states")
     if not np.all(np.isfinite(p)):
@@ -50,6 +60,10 @@ def check_poles(poles, n: int, rank_b: int, what: str = "poles") -> np.ndarray:
     for z in cplx:
         if np.sum(np.isclose(cplx, np.conj(z), rtol=1e-9, atol=1e-12)) != np.sum(np.isclose(cplx, z, rtol=1e-9, atol=1e-12)):
             raise PoleError(f"{what}: complex pole {z} has no conjugate partner")
+        if np.sum(cplx == np.conj(z)) != np.sum(cplx == z):
+            near = cplx[np.isclose(cplx, np.conj(z), rtol=1e-9, atol=1e-12)][0]
+            raise PoleError(f"{what}: complex poles {z} and {near} are conjugates only to within rounding; "
+                            f"give an exact pair (a + bj, a - bj): place() needs exact conjugates")
     for z in np.unique(np.round(p, 9)):
         mult = int(np.sum(np.isclose(p, z, rtol=1e-9, atol=1e-12)))
         if mult > rank_b:
@@ -70,6 +84,9 @@ def parse_poles(text: str) -> np.ndarray:
         except ValueError:
             raise PoleError(f"cannot read pole {part.strip()!r} in {text!r}") from None
     p = np.array(out)
+    if not np.all(np.isfinite(p)):
+        raise PoleError(f"poles must be finite numbers, got {', '.join(str(z) for z in p[~np.isfinite(p)])} "
+                        f"in {text!r}")
     return p.real if np.all(p.imag == 0) else p
 
 
@@ -182,9 +199,15 @@ def place_poles(sys: control.StateSpace, poles=THESIS_POLES, observer_factor: fl
         The system is not controllable or not observable.
     """
     A, B, C = np.asarray(sys.A), np.asarray(sys.B), np.asarray(sys.C)
+    for name, mat in (("A", A), ("B", B), ("C", C), ("D", np.asarray(sys.D))):
+        if not np.all(np.isfinite(mat)):
+            raise ValueError(f"place_poles: the linear model's {name} holds NaN or inf: no design from it "
+                             f"(check the linearization's parameters)")
     n, m = B.shape
-    if not observer_factor > 0:
-        raise PoleError(f"observer_factor must be positive, got {observer_factor}")
+    observer_factor = checks.number(observer_factor, "observer_factor", PoleError, low=0.0, low_open=True)
+    if not np.any(B):
+        raise ValueError("place_poles: the linear model's B is zero: the inputs do not act on the states, "
+                         "no gain can move its poles")
     rank_b = int(np.linalg.matrix_rank(B))
     p = check_poles(poles, n, rank_b)
     po = check_poles(observer_factor * p, n, int(np.linalg.matrix_rank(C)), "observer poles")
@@ -295,16 +318,17 @@ def simulate_closed_loop(leg: LegParams, d: StateFeedback, step=(0.0, math.radia
     step : (2,) sequence
         The reference step of (q1, q2) [rad] (default: segment 2 by 20 deg, as in thesis 5.5).
     duration, period : float
-        Simulated time and the controller's sample time [s].
+        Simulated time and the controller's sample time [s]: 0 < period <= duration <=
+        :data:`MAX_DURATION` (600 s), at most :data:`MAX_SAMPLES` samples.
     model : {"fivebar", "parallelogram"}
         The plant: the exact five-bar or the thesis's model (a).
     counts_per_joint_turn : int, optional
         Quantization of the measured angles (default: encoder CPR x gear ratio, the thesis's
         4000 x 3).
     torque_limit : float
-        |torque| limit at each joint [N*m].
+        |torque| limit at each joint [N*m], positive (inf: none).
     substeps : int
-        Integration steps per sample period.
+        Integration steps per sample period (1 to 1000).
     friction : (6,) array_like, optional
         The plant's friction vector (:func:`leglib.model.dynamics.friction_vector`) instead
         of the leg's.
@@ -317,8 +341,20 @@ def simulate_closed_loop(leg: LegParams, d: StateFeedback, step=(0.0, math.radia
     Raises
     ------
     ValueError
-        The simulated leg left the model's valid configuration.
+        An argument out of its range (named), or the simulated leg left the model's valid
+        configuration.
     """
+    duration = checks.number(duration, "simulate_closed_loop: duration [s]", ValueError, low=0.0, low_open=True,
+                             high=MAX_DURATION)
+    period = checks.number(period, "simulate_closed_loop: period [s]", ValueError, low=0.0, low_open=True,
+                           high=duration)
+    if duration / period > MAX_SAMPLES:
+        raise ValueError(f"simulate_closed_loop: duration / period = {duration / period:.3g} controller samples; "
+                         f"at most {MAX_SAMPLES} (a longer period or a shorter duration)")
+    if torque_limit != np.inf:
+        torque_limit = checks.number(torque_limit, "simulate_closed_loop: torque_limit [N*m]", ValueError,
+                                     low=0.0, low_open=True)
+    substeps = checks.integer(substeps, "simulate_closed_loop: substeps", ValueError, low=1, high=1000)
     q0 = np.array(leg.q0)
     tau0 = M.equilibrium_torque(leg, q0, model=model)
     ctrl = Controller(d, q0, tau0, period, torque_limit)

@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from .. import plots
+from .. import checks, plots
 from ..device.session import as_device, check_gains
 from ..errors import IdentificationError
 from ..experiments.step import step_response
@@ -322,14 +322,28 @@ class Tuning:
         return plots.plot_design_path(self, ax=ax)
 
 
-def _check_target(zeta, fn, max_experiments, tolerance):
+# the heaviest foot payload a starting model is made for (the plants' own bound, kg)
+MAX_PAYLOAD_GUESS = 5.0
+
+
+def _check_arguments(zeta, fn, max_experiments, tolerance, payload_guess, start, progress, on_experiment):
+    """Every argument of :func:`tune` that needs no device, checked before the first step."""
     for name, v in (("zeta", zeta), ("fn", fn), ("tolerance", tolerance)):
-        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v) \
-                or v <= 0:
-            raise ValueError(f"design: {name} must be a positive finite number, got {v!r}")
-    if isinstance(max_experiments, bool) or not isinstance(max_experiments, (int, np.integer)) \
-            or max_experiments < 1:
-        raise ValueError(f"design: max_experiments must be a positive integer, got {max_experiments!r}")
+        checks.number(v, f"tune: {name}", ValueError, low=0.0, low_open=True)
+    checks.integer(max_experiments, "tune: max_experiments", ValueError, low=1)
+    payload_guess = checks.number(payload_guess, "tune: payload_guess [kg]", ValueError, low=0.0,
+                                  high=MAX_PAYLOAD_GUESS)
+    if start is not None:
+        if isinstance(start, (str, bytes)) or not hasattr(start, "__len__") or len(start) != 2:
+            raise ValueError(f"tune: start must be the two gains (pos_gain, vel_gain) of the first experiment, "
+                             f"got {start!r}")
+        start = tuple(checks.number(g, f"tune: start[{i}] ({name})", ValueError, low=0.0, low_open=True)
+                      for i, (g, name) in enumerate(zip(start, ("pos_gain", "vel_gain"))))
+    checks.boolean(progress, "tune: progress", ValueError)
+    if on_experiment is not None and not callable(on_experiment):
+        raise ValueError(f"tune: on_experiment must be callable (called with each Experiment) or None, "
+                         f"got {on_experiment!r}")
+    return payload_guess, start
 
 
 def tune(odrv, zeta: float, fn: float, max_experiments: int = 10, *, vel_integrator_gain: float = 0.01,
@@ -348,11 +362,15 @@ def tune(odrv, zeta: float, fn: float, max_experiments: int = 10, *, vel_integra
     max_experiments : the budget of step responses, the final check included
     vel_integrator_gain : kept fixed [N*m/turn]; pos_gain and vel_gain are designed
     tolerance : relative error in zeta and fn at which the design stops
-    payload_guess : foot payload [kg] for the starting model (the loop corrects a wrong guess)
+    payload_guess : foot payload [kg] for the starting model (the loop corrects a wrong guess),
+        in [0, :data:`MAX_PAYLOAD_GUESS`]
     step, duration, sample_period : the step experiment (:func:`leglib.experiments.step.step_response`)
-    start : gains (pos_gain, vel_gain) of the first experiment instead of the model's
+    start : gains (pos_gain, vel_gain) of the first experiment instead of the model's, within
+        the configuration's maxima
     progress : print one line per experiment
-    on_experiment : called as ``on_experiment(experiment)`` after each step
+    on_experiment : called as ``on_experiment(experiment)`` after each step (None: not called)
+
+    Every argument is checked before the first step runs on the device (ValueError naming it).
 
     Returns
     -------
@@ -360,10 +378,13 @@ def tune(odrv, zeta: float, fn: float, max_experiments: int = 10, *, vel_integra
     first, and then ``gains`` are the best experiment's.
     """
 
-    _check_target(zeta, fn, max_experiments, tolerance)
+    payload_guess, start = _check_arguments(zeta, fn, max_experiments, tolerance, payload_guess, start, progress,
+                                            on_experiment)
     dev = as_device(odrv)
     cfg = dev.config
     check_gains(cfg, 1.0, 1e-3, vel_integrator_gain)
+    if start is not None:
+        check_gains(cfg, start[0], start[1], vel_integrator_gain)
     target = (float(zeta), float(fn))
     bounds = ((0.5, float(cfg.max_pos_gain)), (1e-3, float(cfg.max_vel_gain)))
     model = nominal_model(dev, payload_guess, step, duration, sample_period)

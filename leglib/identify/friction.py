@@ -19,6 +19,7 @@ from numba import njit
 from scipy.optimize import least_squares
 from scipy.signal import savgol_filter
 
+from .. import checks
 from ..errors import IdentificationError
 from ..model.dynamics import (
     bias_torque,
@@ -177,9 +178,12 @@ def fit_friction(t, torque, velocity=None, position=None, inertia: float | None 
     torque : (N,) applied torque [N*m], held between samples
     velocity : (N,) joint velocity [rad/s], or
     position : (N,) joint angle [rad], differentiated robustly (Savitzky-Golay)
-    inertia : [kg*m^2] if known; fitted otherwise
-    eps : Coulomb smoothing velocity [rad/s]; fitted when not given
-    starts : number of optimizer starts (equation-error estimate first)
+    inertia : [kg*m^2] if known (positive, finite); fitted otherwise
+    eps : Coulomb smoothing velocity [rad/s] (positive, finite); fitted when not given
+    starts : number of optimizer starts (equation-error estimate first), an integer in [1, 100]
+
+    The series are arrays of finite real numbers: masked arrays with masked samples
+    (masks are not honoured: drop those samples), complex values and strings are refused.
 
     Returns
     -------
@@ -191,8 +195,9 @@ def fit_friction(t, torque, velocity=None, position=None, inertia: float | None 
     Raises
     ------
     IdentificationError
-        Mismatched, short, non-increasing or non-finite data, or neither or both of
-        ``velocity`` and ``position``.
+        Mismatched, short, non-increasing, non-finite, masked, complex or non-numeric data,
+        neither or both of ``velocity`` and ``position``, or an invalid ``inertia``, ``eps``
+        or ``starts`` (each named).
 
     Output-error least squares on the velocity, with bounds, a smooth Coulomb term with
     separate values per direction (asymmetric data is fine), several starts. Uncertainties
@@ -200,24 +205,34 @@ def fit_friction(t, torque, velocity=None, position=None, inertia: float | None 
     :data:`MIN_DIRECTION_SAMPLES` samples beyond 3 eps) is not identified: its Coulomb value
     is NaN, its flag False, and ``coulomb`` is the excited direction's value.
     """
-    t = np.asarray(t, dtype=float)
-    tau = np.asarray(torque, dtype=float)
+    E = IdentificationError
+    t = checks.real_array(t, "t", E)
+    tau = checks.real_array(torque, "torque", E)
     if t.ndim != 1 or tau.shape != t.shape or t.size < 20:
         raise IdentificationError("t and torque must be 1-D of equal length (at least 20 samples)")
     if np.any(np.diff(t) <= 0):
         raise IdentificationError("time must increase strictly")
     if (velocity is None) == (position is None):
         raise IdentificationError("give exactly one of velocity [rad/s] or position [rad]")
-    v = derivative(t, position) if velocity is None else np.asarray(velocity, dtype=float)
-    if v.shape != t.shape or not (np.all(np.isfinite(v)) and np.all(np.isfinite(tau))):
-        raise IdentificationError("velocity/position must match t and be finite")
+    if inertia is not None:
+        inertia = checks.number(inertia, "fit_friction: inertia [kg*m^2]", E, low=0.0, low_open=True)
+    if eps is not None:
+        eps = checks.number(eps, "fit_friction: eps [rad/s]", E, low=0.0, low_open=True)
+    starts = checks.integer(starts, "fit_friction: starts", E, low=1, high=100)
+    if velocity is None:
+        x = checks.real_array(position, "position", E)
+        if x.shape != t.shape:
+            raise IdentificationError(f"position must match t: shape {x.shape}, t has {t.shape}")
+        v = derivative(t, x)
+    else:
+        v = checks.real_array(velocity, "velocity", E)
+        if v.shape != t.shape:
+            raise IdentificationError(f"velocity must match t: shape {v.shape}, t has {t.shape}")
     vmax = float(np.max(np.abs(v)))
     if vmax <= 0:
         raise IdentificationError("the joint did not move: friction cannot be identified")
     fit_eps = eps is None
     eps0 = 0.01 * vmax if eps is None else eps
-    if inertia is not None and not inertia > 0:
-        raise IdentificationError(f"inertia must be positive, got {inertia}")
     # equation error: tau = J a + b v + c+ s+ + c- s-  (linear least squares)
     a = derivative(t, v)
     th = np.tanh(v / eps0)
@@ -263,7 +278,7 @@ def fit_friction(t, torque, velocity=None, position=None, inertia: float | None 
         hi.append(0.2 * scale_v)
     rng = np.random.default_rng(0)
     best = None
-    for k in range(max(1, starts)):
+    for k in range(starts):
         x0 = np.array(base, dtype=float)
         if k > 0:
             x0 *= np.exp(rng.normal(0, 0.5, x0.size))
@@ -458,7 +473,8 @@ def fit_leg_friction(run, leg, model: str = "coulomb_viscous", cross: bool = Fal
     ValueError
         ``model`` is not one of :data:`FRICTION_MODELS`.
     IdentificationError
-        The run has no torque table, or too few samples after ``start``.
+        The run has no torque table, too few samples after ``start``, or ``starts``,
+        ``start``, ``max_nfev`` invalid (named).
 
     The Coulomb term is c tanh(v / v_smooth); its width v_smooth [rad/s] is fitted too (the
     residual tells it: assuming a width biases the viscous estimate). The simulation is
@@ -469,6 +485,10 @@ def fit_leg_friction(run, leg, model: str = "coulomb_viscous", cross: bool = Fal
         raise ValueError(f"model must be one of {FRICTION_MODELS}, got {model!r}")
     if getattr(run, "table", None) is None:
         raise IdentificationError("the run has no torque table (play it with leglib.experiments.torque)")
+    starts = checks.integer(starts, "fit_leg_friction: starts", IdentificationError, low=1, high=100)
+    start = checks.number(start, "fit_leg_friction: start [s]", IdentificationError, low=0.0)
+    if max_nfev is not None:
+        max_nfev = checks.integer(max_nfev, "fit_leg_friction: max_nfev", IdentificationError, low=1)
     names = ["viscous1", "viscous2", "coulomb1", "coulomb2", "inertia_scale", "mass_scale", "dq1_0", "dq2_0",
              "v_smooth"]
     lo = [0, 0, 0, 0, 0.2, 0.2, -20, -20, 5e-4]

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import find_peaks, savgol_filter
 
-from .. import plots
+from .. import checks, plots
 from ..errors import IdentificationError
 from .fastfit import (
     C_DELAY,
@@ -65,7 +65,7 @@ from .fastfit import (
     _shapes,
     model,
 )
-from .listing77 import _series, _thesis_reading
+from .listing77 import MAX_SAMPLES, _series, _thesis_reading
 
 
 @dataclass
@@ -178,9 +178,13 @@ def second_order(t, y, method: str = "fit"):
 
     Parameters
     ----------
-    t : (N,) time [s], strictly increasing; the step is applied at or after t[0]
+    t : (N,) time [s], strictly increasing, finite; the step is applied at or after t[0]
     y : (N,) response (any unit, e.g. foot height [m]; for ``"thesis"`` the listing's
-        signal, :func:`leglib.model.kinematics.thesis_listing_height`)
+        signal, :func:`leglib.model.kinematics.thesis_listing_height`); real numbers: a
+        masked array with masked samples is refused (masks are not honoured: drop those
+        samples), so are complex values and strings. 20 <= N <= :data:`MAX_SAMPLES`
+        (250 000): a longer record is refused with the advice to decimate it (``t[::k]``,
+        ``y[::k]``), never decimated silently
     method : {"fit", "corrected_logdec", "logdec", "thesis"}
         "fit" (least squares, default) and "corrected_logdec" (a corrected logarithmic
         decrement; "logdec" is the same) give the true zeta, wn; "thesis" is Listing 7.7
@@ -197,7 +201,9 @@ def second_order(t, y, method: str = "fit"):
     if method == "thesis":
         return _thesis_reading(t, y)
     if method == "fit":
-        # validation, starts and fit in one compiled call (leglib.identify.fastfit); a batch of one
+        # the arguments checked by name first (types, masks, size); then validation, starts
+        # and fit in one compiled call (leglib.identify.fastfit), a batch of one
+        _series(t, y, 20)
         fit = identify_batch([t], [y])[0]
         if isinstance(fit, IdentificationError):
             raise fit
@@ -283,7 +289,9 @@ def identify_batch(ts, ys, shapes: bool = False):
 
     Parameters
     ----------
-    ts, ys : sequences of array-likes, times [s] (strictly increasing) and responses
+    ts, ys : sequences of array-likes, times [s] (strictly increasing) and responses, of real
+        numbers (masked arrays with masked samples, complex values and strings are refused),
+        at most :data:`MAX_SAMPLES` samples each (decimate longer records first)
     shapes : also return each response's :func:`shape_numbers` row (NaN for a response
         refused before fitting), from the same packed copy of the data
 
@@ -295,12 +303,18 @@ def identify_batch(ts, ys, shapes: bool = False):
     (that list, the (K, 4) shape numbers)
     """
 
-    ts = [np.asarray(t, dtype=float) for t in ts]
-    ys = [np.asarray(y, dtype=float) for y in ys]
+    ts, ys = list(ts), list(ys)
     if len(ts) != len(ys):
         raise ValueError(f"{len(ts)} time arrays for {len(ys)} responses")
     bad = {}
     for k, (t, y) in enumerate(zip(ts, ys)):
+        try:
+            ts[k] = checks.real_array(t, f"ts[{k}]", IdentificationError, finite=False, max_size=MAX_SAMPLES)
+            ys[k] = checks.real_array(y, f"ys[{k}]", IdentificationError, finite=False, max_size=MAX_SAMPLES)
+        except IdentificationError as exc:
+            bad[k] = exc
+            continue
+        t, y = ts[k], ys[k]
         if t.ndim != 1 or y.shape != t.shape:
             bad[k] = IdentificationError(f"t and y must be 1-D arrays of equal length, got {t.shape} and {y.shape}")
     keep = [k for k in range(len(ts)) if k not in bad]

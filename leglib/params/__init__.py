@@ -2,7 +2,9 @@
 
 Every constant of a parameter file is an inline table ``{ value, unit, source }``.
 The loader converts ``unit`` to SI, checks that it has the dimension the field expects and
-that the value is finite and in range, and raises :class:`ParameterError` (a ``ValueError``)
+that the value is finite, in range and plausible (the fields a typo or a wrong unit makes
+absurd carry physical or configured bounds: ``current_lim``, the gain maxima, ``payload_mass``,
+``gear_ratio``, the cprs, ``usb_latency``, ...), and raises :class:`ParameterError` (a ``ValueError``)
 naming the file and the field otherwise. Nothing silently defaults: every field of a
 dataclass must be present in its file, and nothing is silently ignored: a section, field or
 inline-table key the dataclass does not declare is an error with a "did you mean".
@@ -123,13 +125,24 @@ def _short(value: Any, limit: int = 60) -> str:
     return text if len(text) <= limit else text[:limit] + "...'"
 
 
-def _p(section: str, unit: str, check: str = "positive"):
-    """Field metadata: TOML section, expected SI unit, value check.
+def _p(section: str, unit: str, check: str = "positive", bounds: tuple | None = None):
+    """Field metadata: TOML section, expected SI unit, value check, plausible range.
 
     check is one of "positive", "nonnegative", "finite", "count" (positive integer),
     "index" (non-negative integer), "sign" (+1 or -1), "string" (plain TOML string, no unit).
+    bounds is ``(low, high, why)``: the SI value must lie in [low, high] (None: no bound on
+    that side), ``why`` says where the bound comes from; checked for file values and
+    keyword overrides alike.
     """
-    return field(metadata={"section": section, "unit": unit, "check": check})
+    meta = {"section": section, "unit": unit, "check": check}
+    if bounds is not None:
+        meta["bounds"] = bounds
+    return field(metadata=meta)
+
+
+# plausible ranges of the fields a typo or a wrong unit makes absurd (SI, or the ODrive's units)
+_CPR = (12, 1 << 24, "an ODrive encoder mode gives 12 (hall sensors) to 2^24 counts per turn")
+_VEL = (None, 300.0, "the MN5212 KV340 at the ODrive v3.6's 56 V turns at most 317 turn/s")
 
 
 def _resolve(name_or_path: str | Path, prefix: str) -> Path:
@@ -308,6 +321,18 @@ def load_dataclass(cls, path: Path, overrides: dict[str, Any] | None = None):
         f = declared[name]
         values[name] = _check_entry(f"{path} (keyword override)", f"{f.metadata['section']}.{name}", val,
                                     f.metadata["check"], f.metadata["unit"])
+    for name, f in declared.items():
+        if "bounds" in f.metadata and not isinstance(values[name], str):
+            low, high, why = f.metadata["bounds"]
+            v = values[name]
+            if (low is not None and v < low) or (high is not None and v > high):
+                sec = f.metadata["section"]
+                at = (f"{path} (keyword override)" if name in (overrides or {})
+                      else _locate(path, text, sec, name))
+                rng = (f"[{low:g}, {high:g}]" if low is not None and high is not None
+                       else f"at most {high:g}" if low is None else f"at least {low:g}")
+                raise ParameterError(f"{at}: field '{sec}.{name}' = {v:g} {f.metadata['unit']} is implausible: "
+                                     f"it must be {rng} ({why})")
     for name, allowed in _ENUMS.items():
         if name in values and values[name] not in allowed:
             sec = declared[name].metadata["section"]
@@ -355,8 +380,8 @@ class LegParams:
     g: float = _p("environment", "m/s^2", "nonnegative")
     q1: float = _p("operating_point", "rad", "finite")
     q2: float = _p("operating_point", "rad", "finite")
-    gear_ratio: float = _p("drive", "-")
-    encoder_cpr: int = _p("drive", "count/turn", "count")
+    gear_ratio: float = _p("drive", "-", bounds=(0.1, 100.0, "a belt or gear reduction of the leg's drive"))
+    encoder_cpr: int = _p("drive", "count/turn", "count", bounds=_CPR)
     axis_of_q1: int = _p("drive", "-", "index")
     axis_of_q2: int = _p("drive", "-", "index")
     direction: int = _p("drive", "-", "sign")
@@ -422,21 +447,21 @@ class MotorParams:
 class OdriveConfig:
     """ODrive configuration (Listing 7.1) in the device's native units (turns, turn/s)."""
 
-    current_lim: float = _p("config", "A")
-    vel_limit: float = _p("config", "turn/s")
+    current_lim: float = _p("config", "A", bounds=(None, 60.0, "the ODrive v3.6's current sense range, 60 A"))
+    vel_limit: float = _p("config", "turn/s", bounds=_VEL)
     brake_resistance: float = _p("config", "ohm")
     pole_pairs: int = _p("config", "-", "count")
     torque_constant: float = _p("config", "N*m/A")
     motor_type: int = _p("config", "-", "index")
-    cpr: int = _p("config", "count/turn", "count")
+    cpr: int = _p("config", "count/turn", "count", bounds=_CPR)
     loop_frequency: float = _p("firmware", "Hz")
     current_control_bandwidth: float = _p("firmware", "rad/s")
     encoder_bandwidth: float = _p("firmware", "rad/s")
     vel_limit_tolerance: float = _p("firmware", "-")
-    step_vel_limit: float = _p("experiment", "turn/s")
-    max_pos_gain: float = _p("experiment", "(turn/s)/turn")
-    max_vel_gain: float = _p("experiment", "N*m/(turn/s)")
-    max_vel_integrator_gain: float = _p("experiment", "N*m/turn")
+    step_vel_limit: float = _p("experiment", "turn/s", bounds=_VEL)
+    max_pos_gain: float = _p("experiment", "(turn/s)/turn", bounds=(None, 1000.0, "a safety bound: the ODrive's default pos_gain is 20"))
+    max_vel_gain: float = _p("experiment", "N*m/(turn/s)", bounds=(None, 10.0, "a safety bound: the ODrive's default vel_gain is 0.17"))
+    max_vel_integrator_gain: float = _p("experiment", "N*m/turn", bounds=(None, 1000.0, "a safety bound: the ODrive's default vel_integrator_gain is 0.33"))
     source_file: str = ""
 
 
@@ -459,7 +484,7 @@ class PlantParams:
     mechanism: str = _p("leg", "", "string")
     inertia_scale: float = _p("scale", "-")
     mass_scale: float = _p("scale", "-")
-    payload_mass: float = _p("scale", "kg", "nonnegative")
+    payload_mass: float = _p("scale", "kg", "nonnegative", bounds=(None, 5.0, "the leg's motors lift well under 1 kg at the foot"))
     viscous1: float = _p("friction", "N*m*s/rad", "nonnegative")
     viscous2: float = _p("friction", "N*m*s/rad", "nonnegative")
     coulomb1: float = _p("friction", "N*m", "nonnegative")
@@ -494,9 +519,9 @@ class PlantParams:
     stop_damping: float = _p("stop", "N*m*s/rad", "nonnegative")
     encoder_noise: float = _p("sensing", "count", "nonnegative")
     current_noise: float = _p("sensing", "A", "nonnegative")
-    usb_latency: float = _p("sensing", "s", "nonnegative")
+    usb_latency: float = _p("sensing", "s", "nonnegative", bounds=(None, 0.1, "a USB transaction takes about 0.4 ms; each advances the twin by it"))
     usb_jitter: float = _p("sensing", "-", "nonnegative")
-    calibration_time: float = _p("sensing", "s", "nonnegative")
+    calibration_time: float = _p("sensing", "s", "nonnegative", bounds=(None, 60.0, "the firmware's motor calibration takes 4.25 s"))
     source_file: str = ""
 
     def replace(self, **changes) -> "PlantParams":

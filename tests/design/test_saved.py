@@ -2,6 +2,7 @@
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -141,3 +142,88 @@ def test_gain_design_from_model_and_map_record_their_source():
     assert g.gains == (40.0, 0.05, 0.01) and g.predicted == pytest.approx((0.2424, 4.95))
     assert g.source["plant_params"]["payload_mass"] == 0.05 and g.method == "model"
     assert math.isfinite(g.source["rms_turns"])
+
+
+def _bump_k(d):
+    d["K"][0][0] += 1.0
+
+
+@pytest.mark.parametrize("edit, field", [
+    (lambda d: d.__setitem__("poles", [1.0, -7.007, -7.014, -7.021]), "'poles' holds [1.], not in the open left"),
+    (lambda d: d.__setitem__("observer_poles", [6.0, -42.042, -42.084, -42.126]), "'observer_poles' holds"),
+    (_bump_k, "'K' does not place the file's 'poles'"),
+    (lambda d: d["L"][0].__setitem__(0, d["L"][0][0] * 2), "'L' does not place the file's 'observer_poles'"),
+    (lambda d: d["K"][0].__setitem__(0, 1e308), "'K' holds 1e+308: no entry of a design exceeds 1e+09"),
+    (lambda d: d["K"][0].__setitem__(0, "0.05"), "'K' must be a 2 x 4 array of numbers, got '0.05' in it"),
+    (lambda d: d["K"].__setitem__(0, ["1", "2", "3", "4"]), "'K' must be a 2 x 4 array of numbers, got '1'"),
+    (lambda d: d.__setitem__("observer_factor", -6), "'observer_factor' must be above 0, got -6"),
+    (lambda d: d.__setitem__("observer_factor", 0), "'observer_factor' must be above 0"),
+])
+def test_state_feedback_file_that_is_not_a_sound_design_is_refused(tmp_path, sf_designs, edit, field):
+    path = _edit(designs.save(tmp_path / "d.json", sf_designs[0]), edit)
+    with pytest.raises(DesignFileError, match=re.escape(str(path)) + ".*" + re.escape(field)):
+        designs.load(path)
+
+
+def test_integral_design_checks_k_and_ki_together(tmp_path, sf_designs):
+    path = designs.save(tmp_path / "d.json", sf_designs[1])
+    assert designs.same(designs.load(path), sf_designs[1])
+    _edit(path, lambda d: d["Ki"][0].__setitem__(0, d["Ki"][0][0] + 5.0))
+    with pytest.raises(DesignFileError, match="'K' does not place the file's 'poles' and 'integral_poles'"):
+        designs.load(path)
+
+
+@pytest.mark.parametrize("edit, field", [
+    (lambda d: d["gains"].__setitem__("pos_gain", 1e300), r"'gains.pos_gain' = 1e\+300 is beyond the configured "
+                                                          r"maximum 200 \(.*odrive_thesis.toml, \[experiment\] max_pos_gain\)"),
+    (lambda d: d["gains"].__setitem__("vel_gain", 5.0), "'gains.vel_gain' = 5 is beyond the configured maximum 1"),
+    (lambda d: d["gains"].__setitem__("vel_integrator_gain", 21), "'gains.vel_integrator_gain' = 21 is beyond"),
+    (lambda d: d["target"].__setitem__("zeta", -5), "'target.zeta' must be above 0, got -5"),
+    (lambda d: d["target"].__setitem__("fn_hz", 0), "'target.fn_hz' must be above 0, got 0"),
+    (lambda d: d["measured"].__setitem__("fn_hz", 1e300), "'measured.fn_hz' must be at most 1000"),
+])
+def test_gain_file_beyond_the_configured_bounds_is_refused(tmp_path, edit, field):
+    g = GainDesign(target=(0.24, 5.0), gains=(50, 0.046, 0.001), method="map", measured=(0.23, 5.1))
+    path = _edit(designs.save(tmp_path / "g.json", g), edit)
+    with pytest.raises(DesignFileError, match=field):
+        designs.load(path)
+
+
+def test_gain_bounds_come_from_the_configuration_given(tmp_path):
+    from leglib.params import load_odrive_config
+    g = GainDesign(target=(0.24, 5.0), gains=(150, 0.046, 0.001), method="map")
+    path = designs.save(tmp_path / "g.json", g)
+    assert designs.load(path) == g
+    with pytest.raises(DesignFileError, match="'gains.pos_gain' = 150 is beyond the configured maximum 100"):
+        designs.load(path, config=load_odrive_config("thesis", max_pos_gain=100.0))
+
+
+def test_files_that_cannot_be_design_files_are_refused_by_name(tmp_path):
+    deep = tmp_path / "deep.json"
+    deep.write_text("[" * 100000 + "]" * 100000)
+    with pytest.raises(DesignFileError, match="deep.json: not a design file: its JSON is nested too deeply"):
+        designs.load(deep)
+    digits = tmp_path / "digits.json"
+    digits.write_text('{"kind": ' + "9" * 5000 + "}")
+    with pytest.raises(DesignFileError, match="digits.json: not a design file: Exceeds the limit"):
+        designs.load(digits)
+    latin = tmp_path / "latin.json"
+    latin.write_bytes(b'{"note": "caf\xe9"}')
+    with pytest.raises(DesignFileError, match=r"latin.json:1: not UTF-8 text \(byte 0xe9\)"):
+        designs.load(latin)
+    with pytest.raises(DesignFileError, match=f"{tmp_path}: a directory; a design file is a regular JSON file"):
+        designs.load(tmp_path)
+    with pytest.raises(DesignFileError, match="/dev/zero: not a regular file"):
+        designs.load("/dev/zero")
+    big = tmp_path / "big.json"
+    big.write_bytes(b" " * (designs.MAX_BYTES + 1))
+    with pytest.raises(DesignFileError, match=f"big.json: {designs.MAX_BYTES + 1} bytes; a design file is at most"):
+        designs.load(big)
+
+
+def test_fifo_is_refused_without_blocking(tmp_path):
+    import os
+    fifo = tmp_path / "design.json"
+    os.mkfifo(fifo)
+    with pytest.raises(DesignFileError, match="design.json: not a regular file"):
+        designs.load(fifo)

@@ -102,3 +102,49 @@ def test_identified_design_settles_within_2_percent_live_on_the_twin(leg):
         run = SF.run_live(odrv, d, ident, duration=4.5)
     m = SF.response_metrics(run.t, run.q2, leg.q2, leg.q2 + math.radians(20))
     assert m["final_error_pct"] < 2.0 and m["settling_time"] < 4.5
+
+
+@pytest.mark.parametrize("poles, factor, message", [
+    (SF.THESIS_POLES, True, "observer_factor must be a real number, got True"),
+    (SF.THESIS_POLES, -6, "observer_factor must be above 0, got -6"),
+    (SF.THESIS_POLES, float("nan"), "observer_factor must be finite"),
+    (np.array([[-7, -7.007], [-7.014, -7.021]]), 6, r"poles: must be a flat sequence of 4 poles, got an array of shape \(2, 2\)"),
+    (("-7", "-7.007", "-7.014", "-7.021"), 6, "poles: must be numbers"),
+    ((-6 + 3j, -6 - 3j * (1 + 1e-11), -15, -15.5), 6, r"complex poles \(-6\+3j\) and .* are conjugates only to within "
+                                                      r"rounding; give an exact pair"),
+])
+def test_design_arguments_are_refused_with_leglibs_message(sys_thesis, poles, factor, message):
+    with pytest.raises(SF.PoleError, match=message):
+        SF.place_poles(sys_thesis, poles, observer_factor=factor)
+
+
+def test_model_with_nan_or_zero_input_is_refused(sys_thesis):
+    import control
+    A = np.array(sys_thesis.A, dtype=float)
+    A[1, 0] = np.nan
+    with pytest.raises(ValueError, match="the linear model's A holds NaN or inf"):
+        SF.place_poles(control.ss(A, sys_thesis.B, sys_thesis.C, sys_thesis.D))
+    with pytest.raises(ValueError, match="the linear model's B is zero"):
+        SF.place_poles(control.ss(sys_thesis.A, 0 * sys_thesis.B, sys_thesis.C, sys_thesis.D))
+
+
+@pytest.mark.parametrize("text", ["nan, -7, -8, -9", "-1e999, -7, -8, -9", "-7, inf+1j, -8, -9"])
+def test_parse_poles_refuses_non_finite(text):
+    with pytest.raises(SF.PoleError, match="poles must be finite numbers, got"):
+        SF.parse_poles(text)
+
+
+@pytest.mark.parametrize("kw, message", [
+    (dict(duration=1e6), r"duration \[s\] must be at most 600, got 1e\+06"),
+    (dict(duration=-1.0), r"duration \[s\] must be above 0, got -1"),
+    (dict(duration=float("nan")), r"duration \[s\] must be finite"),
+    (dict(duration=500.0, period=1e-3), r"duration / period = 5e\+05 controller samples; at most 300000"),
+    (dict(period=0.0), r"period \[s\] must be above 0"),
+    (dict(torque_limit=-0.73), r"torque_limit \[N\*m\] must be above 0, got -0.73"),
+    (dict(torque_limit=True), r"torque_limit \[N\*m\] must be a real number"),
+    (dict(substeps=2.5), "substeps must be an integer"),
+])
+def test_simulate_closed_loop_refuses_bad_arguments_at_once(leg, sys_thesis, kw, message):
+    d = SF.place_poles(sys_thesis)
+    with pytest.raises(ValueError, match="simulate_closed_loop: " + message):
+        lg.simulate_closed_loop(leg, d, **kw)

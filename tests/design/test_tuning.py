@@ -84,3 +84,22 @@ def test_design_refuses_bad_arguments(loaded_dev, kw, name):
     args.update(kw)
     with pytest.raises(ValueError, match=name):
         tune(loaded_dev, **args)
+
+
+@pytest.mark.parametrize("kw, message", [
+    (dict(payload_guess=float("nan")), r"tune: payload_guess \[kg\] must be finite"),
+    (dict(payload_guess=-5), r"tune: payload_guess \[kg\] must be at least 0, got -5"),
+    (dict(payload_guess=1e9), r"tune: payload_guess \[kg\] must be at most 5"),
+    (dict(start=(30,)), r"tune: start must be the two gains \(pos_gain, vel_gain\) of the first experiment, got \(30,\)"),
+    (dict(start=30), "tune: start must be the two gains"),
+    (dict(start=(30, "0.05")), r"tune: start\[1\] \(vel_gain\) must be a real number, got '0.05'"),
+    (dict(start=(1e6, 0.05)), r"pos_gain = 1000000.0 is outside the allowed range \[0, 200.0\]"),
+    (dict(on_experiment="print"), "tune: on_experiment must be callable"),
+    (dict(progress="yes"), "tune: progress must be True or False"),
+])
+def test_design_refuses_bad_arguments_before_the_first_experiment(loaded_dev, kw, message):
+    before = loaded_dev.sim.transactions
+    with pytest.raises(ValueError, match=message):
+        tune(loaded_dev, 0.3, 5.0, **kw)
+    # nothing ran on the device: not a step, not a read
+    assert loaded_dev.sim.transactions == before

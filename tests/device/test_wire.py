@@ -253,3 +253,19 @@ def test_device_reconnect_after_reboot():
     d.reconnect()
     assert d.raw is not old and d.sim is sim and device_of(d.raw) is sim
     assert d.firmware_version == (0, 5, 6) and isinstance(d.raw.vbus_voltage, float)
+
+
+@pytest.mark.parametrize("option, value, message", [
+    ("noise", "no", "virtual ODrive option noise must be True or False, got 'no'"),
+    ("noise", 0, "virtual ODrive option noise must be True or False, got 0"),
+    ("realtime", "false", "virtual ODrive option realtime must be True or False"),
+    ("payload_off_for_calibration", 1, "virtual ODrive option payload_off_for_calibration must be True or False"),
+    ("disconnect_after", 2.5, "virtual ODrive option disconnect_after must be an integer, got 2.5"),
+])
+def test_switches_are_booleans_only(option, value, message):
+    from leglib.errors import ParameterError
+    # refused before a device is made: the seed is never used
+    with pytest.raises(ParameterError, match=message):
+        lg.connect("virtual", seed=9771, **{option: value})
+    with pytest.raises(ParameterError, match=message):
+        find_any(seed=9771, **{option: value})

@@ -210,3 +210,64 @@ def test_standard_errors_match_the_spread_of_repeated_fits():
             assert 0.8 * spread <= se <= 3 * spread
         else:
             assert 0.7 * spread <= se <= 1.4 * spread
+
+
+def _step_y():
+    return _model(T, 0.3, 30.0, 1.0, 0.0, 0.0)
+
+
+@pytest.mark.parametrize("method", ["fit", "corrected_logdec", "thesis"])
+@pytest.mark.parametrize("t, y, message", [
+    (T, np.ma.masked_array(_step_y(), mask=T > 1.4), "y is a masked array with 50 masked element"),
+    (T, _step_y() + 0j, "y must be real, got a complex array"),
+    ([str(x) for x in T], _step_y(), "t must be an array of real numbers, got str"),
+    (T, [str(x) for x in _step_y()], "y must be an array of real numbers"),
+    (np.where(T > 1.0, np.nan, T), _step_y(), "time t contains NaN or infinite values"),
+    (np.where(T > 1.0, np.inf, T), _step_y(), "time t contains NaN"),
+])
+def test_identification_input_is_refused_by_argument(method, t, y, message):
+    with pytest.raises(IdentificationError, match=message):
+        second_order(t, y, method=method)
+
+
+def test_a_mask_that_hides_nothing_is_plain_data():
+    y = _step_y()
+    f = second_order(T, np.ma.masked_array(y, mask=np.zeros(T.size, bool)))
+    assert f.zeta == pytest.approx(second_order(T, y).zeta)
+
+
+def test_too_many_samples_are_refused_with_the_bound():
+    from leglib.identify.step import MAX_SAMPLES
+    t = np.arange(MAX_SAMPLES + 1) * 1e-5
+    with pytest.raises(IdentificationError, match=f"t has {MAX_SAMPLES + 1} samples; at most {MAX_SAMPLES} are "
+                                                  r"accepted \(decimate it first"):
+        second_order(t, np.zeros(t.size))
+
+
+def test_batch_names_the_bad_response():
+    from leglib.identify.step import identify_batch
+    good, bad = identify_batch([T, T], [_step_y(), _step_y().astype(complex)])
+    assert good.zeta == pytest.approx(0.3, rel=0.01)
+    assert isinstance(bad, IdentificationError) and "ys[1] must be real" in str(bad)
+
+
+@pytest.mark.parametrize("kw, message", [
+    (dict(eps=-0.01), "eps .rad/s. must be above 0, got -0.01"),
+    (dict(eps=0), "eps .rad/s. must be above 0, got 0"),
+    (dict(eps=float("nan")), "eps .rad/s. must be finite"),
+    (dict(starts=2.5), "starts must be an integer, got 2.5"),
+    (dict(starts=0), "starts must be at least 1"),
+    (dict(inertia=float("inf")), "inertia .kg.m\\^2. must be finite"),
+    (dict(inertia=-1.0), "inertia .kg.m\\^2. must be above 0"),
+    (dict(t=np.where(TF > 1, np.nan, TF)), "t must hold finite numbers only"),
+    (dict(t=np.where(TF > 1, np.inf, TF)), "t must hold finite numbers only"),
+    (dict(velocity=None, position=np.where(TF > 1, np.nan, 0.0)), "position must hold finite numbers only"),
+    (dict(velocity=np.ma.masked_array(np.ones(TF.size), mask=TF > 5)), "velocity is a masked array"),
+    (dict(torque=TAU + 1j), "torque must be real, got a complex array"),
+    (dict(torque=[str(x) for x in TAU]), "torque must be an array of real numbers"),
+])
+def test_fit_friction_refuses_bad_arguments_by_name(kw, message):
+    args = dict(t=TF, torque=TAU, velocity=_joint())
+    args.update(kw)
+    with pytest.raises(IdentificationError, match=message):
+        fit_friction(**args)

@@ -48,7 +48,8 @@ from odrive.libodrive import DeviceLostException, DeviceType, DiscoveryInfo
 from odrive.runtime_device import RuntimeDevice
 from odrive.sync_tree import SyncObject
 
-from ...errors import DeviceLostError
+from ... import checks
+from ...errors import DeviceLostError, ParameterError
 from ...params import PlantParams, load_plant
 from .firmware import VirtualODrive
 from .tree import Endpoint, Leaf, model_paths
@@ -559,6 +560,13 @@ def find_any(*, seed: int = 0, plant="default", firmware: str = "0.5.6", realtim
     if unknown:
         raise TypeError(f"find_any: unknown option(s) {sorted(unknown)}; allowed: seed, plant, firmware, "
                         f"realtime, timeout, serial_number, {', '.join(sorted(allowed))}")
+    # switches are booleans only: bool("no") is True
+    realtime = checks.boolean(realtime, "virtual ODrive option realtime", ParameterError)
+    for name in ("noise", "payload_off_for_calibration"):
+        if name in options:
+            options[name] = checks.boolean(options[name], f"virtual ODrive option {name}", ParameterError)
+    if options.get("disconnect_after") is not None:
+        checks.integer(options["disconnect_after"], "virtual ODrive option disconnect_after", ParameterError, low=0)
     args = {"plant": load_plant(plant) if isinstance(plant, str) else plant, "firmware": version,
             **{k: v for k, v in options.items() if k != "disconnect_after"}}
     with _REGISTRY_LOCK:

@@ -1,0 +1,91 @@
+"""Checks of values where they enter leglib: numbers, booleans and numeric arrays.
+
+Each check raises the error class it is given (one of :mod:`leglib.errors`), with a message
+that names the argument (or file and field). Booleans are not numbers here, and numbers are
+not booleans: ``True`` is refused as a gain, ``"no"`` as a switch.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from typing import Any
+
+import numpy as np
+
+__all__ = ["number", "integer", "boolean", "real_array"]
+
+
+def _short(value: Any, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
+def number(value, name: str, error=ValueError, *, low: float | None = None, high: float | None = None,
+           low_open: bool = False, unit: str = "") -> float:
+    """``value`` as a finite real float in [low, high] (``(low, high]`` with ``low_open``);
+    ``error`` naming ``name`` otherwise (a bool, a string, a complex number, NaN, inf)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise error(f"{name} must be a real number, got {_short(value)}")
+    try:
+        v = float(value)
+    except OverflowError:
+        v = math.inf
+    if not math.isfinite(v):
+        raise error(f"{name} must be finite, got {_short(value)}")
+    u = f" {unit}" if unit else ""
+    if low is not None and (v <= low if low_open else v < low):
+        raise error(f"{name} must be {'above' if low_open else 'at least'} {low:g}{u}, got {v:g}")
+    if high is not None and v > high:
+        raise error(f"{name} must be at most {high:g}{u}, got {v:g}")
+    return v
+
+
+def integer(value, name: str, error=ValueError, *, low: int | None = None, high: int | None = None) -> int:
+    """``value`` as an int (an integral number, not a bool, not 2.5) in [low, high]."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise error(f"{name} must be an integer, got {_short(value)}")
+    v = int(value)
+    if low is not None and v < low:
+        raise error(f"{name} must be at least {low}, got {v}")
+    if high is not None and v > high:
+        raise error(f"{name} must be at most {high}, got {v}")
+    return v
+
+
+def boolean(value, name: str, error=ValueError) -> bool:
+    """``value`` as a bool: only True or False (numpy's too), never a string or a number."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise error(f"{name} must be True or False, got {_short(value)}")
+    return bool(value)
+
+
+def real_array(value, name: str, error=ValueError, *, ndim: int | None = None, finite: bool = True,
+               max_size: int | None = None) -> np.ndarray:
+    """``value`` as a float ndarray; ``error`` naming ``name`` for anything that is not an array
+    of real numbers (strings, objects, complex numbers), for a masked array with masked
+    elements (masks are not honoured: drop those samples first), a wrong ``ndim``, more than
+    ``max_size`` elements, and (with ``finite``) NaN or inf."""
+    if isinstance(value, np.ma.MaskedArray):
+        masked = int(np.count_nonzero(np.ma.getmaskarray(value)))
+        if masked:
+            raise error(f"{name} is a masked array with {masked} masked element(s): leglib does not honour "
+                        f"masks; drop the masked samples first (e.g. x[~mask] for every series)")
+        value = np.ma.getdata(value)
+    if isinstance(value, (str, bytes)):
+        raise error(f"{name} must be an array of real numbers, got {_short(value)}")
+    a = np.asarray(value)
+    if a.dtype.kind == "c":
+        raise error(f"{name} must be real, got a complex array (take .real or abs() deliberately)")
+    if a.dtype.kind not in "iuf":
+        raise error(f"{name} must be an array of real numbers, got {a.dtype.name} values "
+                    f"({_short(a.ravel()[:3].tolist()) if a.size else '[]'})")
+    if ndim is not None and a.ndim != ndim:
+        raise error(f"{name} must be a {ndim}-D array, got shape {a.shape}")
+    if max_size is not None and a.size > max_size:
+        raise error(f"{name} has {a.size} samples; at most {max_size} are accepted (decimate it first, "
+                    f"e.g. x[::k])")
+    a = a.astype(float)
+    if finite and not np.all(np.isfinite(a)):
+        raise error(f"{name} must hold finite numbers only (it has NaN or inf)")
+    return a
