@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from .errors import ArgumentError
+
 __all__ = ["number", "integer", "boolean", "real_array"]
 
 
@@ -21,7 +23,7 @@ def _short(value: Any, limit: int = 60) -> str:
     return text if len(text) <= limit else text[:limit] + "..."
 
 
-def number(value, name: str, error=ValueError, *, low: float | None = None, high: float | None = None,
+def number(value, name: str, error=ArgumentError, *, low: float | None = None, high: float | None = None,
            low_open: bool = False, unit: str = "") -> float:
     """``value`` as a finite real float in [low, high] (``(low, high]`` with ``low_open``);
     ``error`` naming ``name`` otherwise (a bool, a string, a complex number, NaN, inf)."""
@@ -41,7 +43,7 @@ def number(value, name: str, error=ValueError, *, low: float | None = None, high
     return v
 
 
-def integer(value, name: str, error=ValueError, *, low: int | None = None, high: int | None = None) -> int:
+def integer(value, name: str, error=ArgumentError, *, low: int | None = None, high: int | None = None) -> int:
     """``value`` as an int (an integral number, not a bool, not 2.5) in [low, high]."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
         raise error(f"{name} must be an integer, got {_short(value)}")
@@ -53,14 +55,14 @@ def integer(value, name: str, error=ValueError, *, low: int | None = None, high:
     return v
 
 
-def boolean(value, name: str, error=ValueError) -> bool:
+def boolean(value, name: str, error=ArgumentError) -> bool:
     """``value`` as a bool: only True or False (numpy's too), never a string or a number."""
     if not isinstance(value, (bool, np.bool_)):
         raise error(f"{name} must be True or False, got {_short(value)}")
     return bool(value)
 
 
-def real_array(value, name: str, error=ValueError, *, ndim: int | None = None, finite: bool = True,
+def real_array(value, name: str, error=ArgumentError, *, ndim: int | None = None, finite: bool = True,
                max_size: int | None = None) -> np.ndarray:
     """``value`` as a float ndarray; ``error`` naming ``name`` for anything that is not an array
     of real numbers (strings, objects, complex numbers), for a masked array with masked

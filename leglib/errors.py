@@ -24,13 +24,17 @@ error                        also a               raised when
 
 from __future__ import annotations
 
-__all__ = ["LeglibError", "ParameterError", "NotebookParameterError", "SpecError", "MeasurementError",
+__all__ = ["LeglibError", "ArgumentError", "ParameterError", "NotebookParameterError", "SpecError", "MeasurementError",
            "ProvenanceError", "DesignFileError", "IdentificationError", "OutsideRegionError", "PoleError",
            "ExperimentError", "DeviceNotFoundError", "DeviceLostError"]
 
 
 class LeglibError(Exception):
     """Base of every error leglib raises on purpose."""
+
+
+class ArgumentError(LeglibError, ValueError):
+    """A function was called with an argument it cannot use (the message names it)."""
 
 
 class ParameterError(LeglibError, ValueError):

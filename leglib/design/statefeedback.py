@@ -23,7 +23,7 @@ from scipy.linalg import expm
 from .. import checks, plots
 from .. import model as M
 from ..device.session import as_device
-from ..errors import PoleError
+from ..errors import ArgumentError, PoleError
 from ..experiments.torque import torque_loop
 from ..params import LegParams
 
@@ -195,18 +195,20 @@ def place_poles(sys: control.StateSpace, poles=THESIS_POLES, observer_factor: fl
     PoleError
         The wrong number of poles, unstable poles, an unpaired complex pole, a multiplicity
         place cannot handle, or a non-positive ``observer_factor``.
+    ArgumentError
+        A model holding NaN or inf, or whose B is zero.
     ValueError
         The system is not controllable or not observable.
     """
     A, B, C = np.asarray(sys.A), np.asarray(sys.B), np.asarray(sys.C)
     for name, mat in (("A", A), ("B", B), ("C", C), ("D", np.asarray(sys.D))):
         if not np.all(np.isfinite(mat)):
-            raise ValueError(f"place_poles: the linear model's {name} holds NaN or inf: no design from it "
+            raise ArgumentError(f"place_poles: the linear model's {name} holds NaN or inf: no design from it "
                              f"(check the linearization's parameters)")
     n, m = B.shape
     observer_factor = checks.number(observer_factor, "observer_factor", PoleError, low=0.0, low_open=True)
     if not np.any(B):
-        raise ValueError("place_poles: the linear model's B is zero: the inputs do not act on the states, "
+        raise ArgumentError("place_poles: the linear model's B is zero: the inputs do not act on the states, "
                          "no gain can move its poles")
     rank_b = int(np.linalg.matrix_rank(B))
     p = check_poles(poles, n, rank_b)
@@ -340,21 +342,22 @@ def simulate_closed_loop(leg: LegParams, d: StateFeedback, step=(0.0, math.radia
 
     Raises
     ------
+    ArgumentError
+        An argument out of its range (named).
     ValueError
-        An argument out of its range (named), or the simulated leg left the model's valid
-        configuration.
+        The simulated leg left the model's valid configuration.
     """
-    duration = checks.number(duration, "simulate_closed_loop: duration [s]", ValueError, low=0.0, low_open=True,
+    duration = checks.number(duration, "simulate_closed_loop: duration [s]", ArgumentError, low=0.0, low_open=True,
                              high=MAX_DURATION)
-    period = checks.number(period, "simulate_closed_loop: period [s]", ValueError, low=0.0, low_open=True,
+    period = checks.number(period, "simulate_closed_loop: period [s]", ArgumentError, low=0.0, low_open=True,
                            high=duration)
     if duration / period > MAX_SAMPLES:
-        raise ValueError(f"simulate_closed_loop: duration / period = {duration / period:.3g} controller samples; "
+        raise ArgumentError(f"simulate_closed_loop: duration / period = {duration / period:.3g} controller samples; "
                          f"at most {MAX_SAMPLES} (a longer period or a shorter duration)")
     if torque_limit != np.inf:
-        torque_limit = checks.number(torque_limit, "simulate_closed_loop: torque_limit [N*m]", ValueError,
+        torque_limit = checks.number(torque_limit, "simulate_closed_loop: torque_limit [N*m]", ArgumentError,
                                      low=0.0, low_open=True)
-    substeps = checks.integer(substeps, "simulate_closed_loop: substeps", ValueError, low=1, high=1000)
+    substeps = checks.integer(substeps, "simulate_closed_loop: substeps", ArgumentError, low=1, high=1000)
     q0 = np.array(leg.q0)
     tau0 = M.equilibrium_torque(leg, q0, model=model)
     ctrl = Controller(d, q0, tau0, period, torque_limit)

@@ -40,7 +40,7 @@ from scipy.optimize import least_squares
 
 from .. import checks, plots
 from ..device.session import as_device, check_gains
-from ..errors import IdentificationError
+from ..errors import ArgumentError, IdentificationError
 from ..experiments.step import step_response
 from ..identify.step import second_order, standard_errors
 from ..model.cascade import axis_closed_loop_matrices, motor_side_inertia
@@ -329,19 +329,19 @@ MAX_PAYLOAD_GUESS = 5.0
 def _check_arguments(zeta, fn, max_experiments, tolerance, payload_guess, start, progress, on_experiment):
     """Every argument of :func:`tune` that needs no device, checked before the first step."""
     for name, v in (("zeta", zeta), ("fn", fn), ("tolerance", tolerance)):
-        checks.number(v, f"tune: {name}", ValueError, low=0.0, low_open=True)
-    checks.integer(max_experiments, "tune: max_experiments", ValueError, low=1)
-    payload_guess = checks.number(payload_guess, "tune: payload_guess [kg]", ValueError, low=0.0,
+        checks.number(v, f"tune: {name}", ArgumentError, low=0.0, low_open=True)
+    checks.integer(max_experiments, "tune: max_experiments", ArgumentError, low=1)
+    payload_guess = checks.number(payload_guess, "tune: payload_guess [kg]", ArgumentError, low=0.0,
                                   high=MAX_PAYLOAD_GUESS)
     if start is not None:
         if isinstance(start, (str, bytes)) or not hasattr(start, "__len__") or len(start) != 2:
-            raise ValueError(f"tune: start must be the two gains (pos_gain, vel_gain) of the first experiment, "
+            raise ArgumentError(f"tune: start must be the two gains (pos_gain, vel_gain) of the first experiment, "
                              f"got {start!r}")
-        start = tuple(checks.number(g, f"tune: start[{i}] ({name})", ValueError, low=0.0, low_open=True)
+        start = tuple(checks.number(g, f"tune: start[{i}] ({name})", ArgumentError, low=0.0, low_open=True)
                       for i, (g, name) in enumerate(zip(start, ("pos_gain", "vel_gain"))))
     checks.boolean(progress, "tune: progress", ValueError)
     if on_experiment is not None and not callable(on_experiment):
-        raise ValueError(f"tune: on_experiment must be callable (called with each Experiment) or None, "
+        raise ArgumentError(f"tune: on_experiment must be callable (called with each Experiment) or None, "
                          f"got {on_experiment!r}")
     return payload_guess, start
 
@@ -370,7 +370,7 @@ def tune(odrv, zeta: float, fn: float, max_experiments: int = 10, *, vel_integra
     progress : print one line per experiment
     on_experiment : called as ``on_experiment(experiment)`` after each step (None: not called)
 
-    Every argument is checked before the first step runs on the device (ValueError naming it).
+    Every argument is checked before the first step runs on the device (:class:`leglib.errors.ArgumentError`, a ValueError, naming it).
 
     Returns
     -------
