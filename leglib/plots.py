@@ -22,6 +22,68 @@ def axes(ax=None):
     return ax
 
 
+
+def _texts(fig):
+    """The figure's visible, non-empty texts with a name for each: titles, axis labels, tick
+    labels, legend entries, annotations, colour bar labels."""
+    out = []
+    for k, ax in enumerate(fig.axes):
+        where = f"axes {k}"
+        named = [(ax.title, "title"), (ax._left_title, "title"), (ax._right_title, "title"),
+                 (ax.xaxis.label, "x label"), (ax.yaxis.label, "y label")]
+        # tick labels that are drawn: those of ticks inside the axis's view
+        for axis, kind, coord in ((ax.xaxis, "x tick", 0), (ax.yaxis, "y tick", 1)):
+            lo, hi = sorted(axis.get_view_interval())
+            span = (hi - lo) * 1e-9
+            named += [(t, kind) for t in axis.get_ticklabels()
+                      if lo - span <= t.get_position()[coord] <= hi + span]
+        legend = ax.get_legend()
+        if legend is not None and legend.get_visible():
+            named += [(t, "legend") for t in legend.get_texts()]
+            named.append((legend.get_title(), "legend title"))
+        named += [(t, "text") for t in ax.texts]
+        for t, kind in named:
+            if t.get_visible() and t.get_text().strip():
+                out.append((t, f"{where} {kind} {t.get_text().strip()[:40]!r}"))
+    named = [(t, "figure text") for t in fig.texts]
+    if getattr(fig, "_suptitle", None) is not None:
+        named.append((fig._suptitle, "suptitle"))
+    out += [(t, f"{kind} {t.get_text().strip()[:40]!r}") for t, kind in named
+            if t.get_visible() and t.get_text().strip()]
+    return out
+
+
+def text_overlaps(fig, tolerance_px: float = 1.0) -> list[str]:
+    """Pairs of texts of ``fig`` that overlap when it is drawn (each named: axes, kind, text),
+    by more than ``tolerance_px`` in both directions: a title running into its neighbour's,
+    a colour bar label into the next panel, tick labels into each other. Texts of one legend
+    are not compared with each other (the legend lays them out)."""
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    boxes = []
+    for t, name in _texts(fig):
+        try:
+            bb = t.get_window_extent(renderer)
+        except (RuntimeError, ValueError):  # a text that cannot be laid out: nothing to compare
+            continue
+        if bb.width > 0 and bb.height > 0:
+            boxes.append((bb, name, t))
+    found = []
+    for i in range(len(boxes)):
+        a, name_a, ta = boxes[i]
+        for j in range(i + 1, len(boxes)):
+            b, name_b, tb = boxes[j]
+            same_legend = " legend" in name_a and " legend" in name_b and name_a.split(" legend")[0] == \
+                name_b.split(" legend")[0]
+            twin = ta.get_text() == tb.get_text() and all(abs(p - q) <= 1.0 for p, q in zip(a.extents, b.extents))
+            if same_legend or twin:  # a twin axes' label drawn on top of its own copy: one text to read
+                continue
+            w = min(a.x1, b.x1) - max(a.x0, b.x0)
+            h = min(a.y1, b.y1) - max(a.y0, b.y0)
+            if w > tolerance_px and h > tolerance_px:
+                found.append(f"{name_a} overlaps {name_b}")
+    return found
+
 def draw_leg(leg, q1, q2, ax=None, **style):
     """Draw the four links of the exact five-bar at (q1, q2) [rad]; returns the Line2D."""
     ax = axes(ax)
@@ -62,12 +124,13 @@ def plot_model_difference(cmp: dict, axes=None):
         ((cmp["y_eq65"] - cmp["y_exact"]) * 1e3, "eq. 6.5 y minus exact foot y [mm]", "[mm]"),
     ]
     images = []
-    for ax, (data, title, unit) in zip(axes, panels):
+    for k, (ax, (data, title, unit)) in enumerate(zip(axes, panels)):
         im = ax.imshow(data, origin="lower", aspect="auto", extent=ext, cmap="magma")
         ax.figure.colorbar(im, ax=ax, label=unit)
         ax.set_title(title)
         ax.set_xlabel("theta = (q1 + q2)/2 [deg]")
-        ax.set_ylabel("q2 - q1 [deg]")
+        if k == 0:  # shared by the row: repeated, it ran into the colour bar label beside it
+            ax.set_ylabel("q2 - q1 [deg]")
         images.append(im)
     return images
 
@@ -188,8 +251,13 @@ def plot_gain_region(gm, ax=None, targets=None, marker=None, numbered: bool = Tr
     ax.set_ylabel("natural frequency fn [Hz]")
     ax.set_title("Achievable (zeta, fn) of the foot's step")
     ax.set_xlim(0, min(hi, 3.0))
-    ax.legend(fontsize=8)
+    region_legend(ax)
     return arts
+
+
+def region_legend(ax):
+    """The legend of a region plot, beside the axes: inside it sat on the targets' numbers."""
+    return ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
 
 
 def plot_map_slices(gm, field: str = "zeta", axes=None):

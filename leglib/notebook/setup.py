@@ -14,11 +14,13 @@ import io
 import math
 import os
 import re
+import warnings
 from pathlib import Path
 from typing import Any, Iterable
 
 import numpy as np
 
+from .. import plots
 from ..errors import NotebookParameterError
 from ..files.atomic import write_bytes_atomic, write_json_atomic
 from ..params import load_plant
@@ -205,13 +207,30 @@ def require_readable_file(name: str, value: Any) -> Path:
 
 
 def write_metrics(path: str | Path, **metrics) -> Path:
-    """The small metrics JSON every notebook writes (tests assert on it)."""
+    """The small metrics JSON every notebook writes (tests assert on it), with
+    ``figure_text_overlaps``: the figures this process saved whose texts overlap
+    (:data:`FIGURE_OVERLAPS`, empty when every figure reads)."""
+    metrics.setdefault("figure_text_overlaps", {k: v for k, v in FIGURE_OVERLAPS.items() if v})
     return write_json_atomic(path, metrics)
+
+
+class FigureLayoutWarning(UserWarning):
+    """A saved figure has texts that overlap (:func:`leglib.plots.text_overlaps`)."""
+
+
+# figure name -> its overlapping texts, for every figure save_figure wrote in this process
+FIGURE_OVERLAPS: dict[str, list[str]] = {}
 
 
 def save_figure(fig, figures_dir: str | Path, name: str) -> Path:
     """Save ``fig`` as ``<figures_dir>/<name>.png`` (whole or not at all; a full disk names
-    the file) and return the path."""
+    the file) and return the path. Its texts are checked for overlaps first: any found are
+    a :class:`FigureLayoutWarning` and go into the notebook's metrics (:func:`write_metrics`)."""
+    overlaps = plots.text_overlaps(fig)
+    FIGURE_OVERLAPS[name] = overlaps
+    if overlaps:
+        warnings.warn(f"figure {name}: {len(overlaps)} overlapping text(s): " + "; ".join(overlaps[:4])
+                      + (" ..." if len(overlaps) > 4 else ""), FigureLayoutWarning, stacklevel=2)
     out = Path(figures_dir)
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"{name}.png"

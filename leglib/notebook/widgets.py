@@ -294,12 +294,12 @@ def gain_step_panel(odrv, gm=None, pos_gain: float = 50.0, vel_gain: float = 0.0
     out = W.Output()
     leg = getattr(odrv, "leg", None)
     # the map's region is drawn once and kept as pixels; each step moves only its marker
-    view = PanelFigure(out, 2, (11, 3.8), static=(1,) if gm is not None else ())
+    view = PanelFigure(out, 2, (12.5, 3.8), static=(1,) if gm is not None else ())
     a2 = view.axes[1]
     if gm is not None:
         plots.plot_gain_region(gm, ax=a2)
         here = a2.scatter(np.empty(0), np.empty(0), s=120, marker="*", c="orange", label="this step")
-        a2.legend(fontsize=8)
+        plots.region_legend(a2)
         view.overlays.append(here)
 
     def redraw(*_):

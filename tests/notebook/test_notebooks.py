@@ -95,7 +95,10 @@ def _check_animations(executed, count: int, max_bytes: int = 3_000_000):
 def _run(path, tmp_path, **params):
     execute(path, tmp_path, {"smoke": True, **params}, html=True)
     assert_report_has_figures(tmp_path, path.stem)
-    return json.loads((tmp_path / "metrics" / f"{path.stem}.json").read_text())
+    metrics = json.loads((tmp_path / "metrics" / f"{path.stem}.json").read_text())
+    # every figure the notebook saved reads: no text over another (leglib.plots.text_overlaps)
+    assert metrics["figure_text_overlaps"] == {}, metrics["figure_text_overlaps"]
+    return metrics
 
 
 @pytest.mark.notebook
