@@ -50,6 +50,14 @@ MAX_ENTRY = 1e9
 # how closely the eigenvalues of A - B K (A - L C) must match the stored poles (observer
 # poles), relative to the largest pole: place() reaches 1e-8 on the thesis's design
 POLE_TOLERANCE = 1e-5
+def dynamics_text(pair) -> str:
+    """A (zeta, fn [Hz]) pair as text to the digits a step's identification supports (zeta to
+    three decimals, fn to 0.01 Hz); "none (not a second-order step)" for None."""
+    if pair is None:
+        return "none (not a second-order step)"
+    return f"zeta {float(pair[0]):.3f}, fn {float(pair[1]):.2f} Hz"
+
+
 # the target, predicted and measured step dynamics of a gain design
 MAX_ZETA, MAX_FN_HZ = 100.0, 1000.0
 

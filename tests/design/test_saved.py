@@ -227,3 +227,9 @@ def test_fifo_is_refused_without_blocking(tmp_path):
     os.mkfifo(fifo)
     with pytest.raises(DesignFileError, match="design.json: not a regular file"):
         designs.load(fifo)
+
+
+def test_dynamics_text_keeps_the_digits_identification_supports():
+    from leglib.design import saved
+    assert saved.dynamics_text((0.23933203135364942, 5.004081632653061)) == "zeta 0.239, fn 5.00 Hz"
+    assert saved.dynamics_text(None) == "none (not a second-order step)"
