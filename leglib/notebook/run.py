@@ -210,6 +210,23 @@ def run_order(paths: list[Path]) -> list[Path]:
     return sorted(paths, key=lambda p: (_number(p) not in needed, _number(p)))
 
 
+def _data_files() -> dict:
+    """The files under the repository's data/ with their modification times."""
+    root = REPO / "data"
+    return {p: p.stat().st_mtime_ns for p in root.rglob("*") if p.is_file()} if root.is_dir() else {}
+
+
+def _data_written(before: dict) -> dict:
+    """``{data/<dir>: count}`` of the files new or changed since ``before``."""
+    counts: dict = {}
+    for p, mtime in _data_files().items():
+        if before.get(p) != mtime:
+            rel = p.relative_to(REPO).parts
+            key = "/".join(rel[:2]) if len(rel) > 2 else rel[0]
+            counts[key] = counts.get(key, 0) + 1
+    return dict(sorted(counts.items()))
+
+
 def run_all(out_dir: str | Path = "reports", smoke: bool = False, workers: int | None = None) -> list[Path]:
     """Execute every numbered notebook against the virtual leg (``make run``).
 
@@ -243,6 +260,7 @@ def run_all(out_dir: str | Path = "reports", smoke: bool = False, workers: int |
               f"{clock(time.monotonic() - t0)}", file=sys.stderr, flush=True)
 
     print(f"[run] {len(paths)} notebooks, {workers} at a time, into {out_dir}", file=sys.stderr, flush=True)
+    data_before = _data_files()
     with ProcessPoolExecutor(max_workers=workers) as pool:
         running = {}
         while waiting or running:
@@ -271,6 +289,10 @@ def run_all(out_dir: str | Path = "reports", smoke: bool = False, workers: int |
                     failed.add(_number(p))
                     error = error or exc
                 tally(p, "failed" if _number(p) in failed else "done")
+    written = _data_written(data_before)
+    if written:
+        print("[run] the notebooks also wrote " + ", ".join(f"{n} file(s) under {d}" for d, n in written.items()),
+              file=sys.stderr, flush=True)
     if error is not None:
         if skipped:
             error.add_note("not run, as they read from a failed notebook: "

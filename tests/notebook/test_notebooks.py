@@ -305,15 +305,27 @@ def test_run_all_skips_what_reads_from_a_failed_notebook(tmp_path, monkeypatch):
     assert any("not run" in n and "03_c.ipynb" in n for n in err.value.__notes__)
 
 
+def _fake_execute_writes_data(notebook, out_dir, parameters, progress=False):
+    from pathlib import Path as _Path
+    if _Path(notebook).name.startswith("02"):
+        raise ValueError("02 failed")
+    data = _Path(out_dir) / "data" / "raw"
+    data.mkdir(parents=True, exist_ok=True)
+    (data / f"{_Path(notebook).stem}.csv").write_text("")
+    return _Path(out_dir) / _Path(notebook).name
+
+
 def test_run_all_says_each_notebook_as_it_ends(tmp_path, monkeypatch, capfd):
     names = ["01_a.ipynb", "02_b.ipynb", "03_c.ipynb", "04_d.ipynb", "05_e.ipynb"]
     monkeypatch.setattr(notebooks, "notebook_paths", lambda: [tmp_path / n for n in names])
-    monkeypatch.setattr(notebooks, "execute", _fake_execute_02_fails)
+    monkeypatch.setattr(notebooks, "execute", _fake_execute_writes_data)
+    monkeypatch.setattr(notebooks, "REPO", tmp_path)   # its data/ is where the notebooks write
     with pytest.raises(ValueError, match="02 failed"):
         notebooks.run_all(tmp_path, workers=2)
     lines = [ln for ln in capfd.readouterr().err.splitlines() if ln.startswith("[run]")]
     assert lines[0].startswith("[run] 5 notebooks, 2 at a time")
-    ends = lines[1:]
+    assert lines[-1] == "[run] the notebooks also wrote 3 file(s) under data/raw"
+    ends = lines[1:-1]
     assert len(ends) == 5 and [ln.split(": ")[1].split()[0] for ln in ends] == ["1/5", "2/5", "3/5", "4/5", "5/5"]
     assert any("02_b.ipynb failed" in ln for ln in ends)
     assert any("03_c.ipynb skipped" in ln for ln in ends)
