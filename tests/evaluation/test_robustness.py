@@ -59,3 +59,35 @@ def test_methods_on_the_default_plant_score_as_measured():
     assert so.experiments == 5 and so.worst < 0.05           # the sensor costs little on the default leg
     assert de.worst < 0.05 and len(res["targets"]) == 3      # the thesis's target and two measured ones
     assert all(v["reached"] and v["experiments"] <= 10 for v in de.detail.values())
+
+
+def test_a_table_older_than_the_code_it_scores_says_so(tmp_path):
+    """staleness: None while no commit since the table's touched the code it depends on; a
+    notice naming the count and the latest commit once one did (a change elsewhere does not
+    count); and it says when it cannot tell."""
+    import subprocess
+
+    def git(*args):
+        return subprocess.run(["git", "-C", str(tmp_path), *args], check=True, capture_output=True,
+                              text=True).stdout.strip()
+
+    git("init", "-q")
+    git("config", "user.email", "t@example.org")
+    git("config", "user.name", "t")
+    (tmp_path / "leglib" / "design").mkdir(parents=True)
+    (tmp_path / "leglib" / "design" / "gainmap.py").write_text("a = 1\n")
+    (tmp_path / "README.md").write_text("x\n")
+    git("add", ".")
+    git("commit", "-q", "-m", "first")
+    doc = {"commit": git("rev-parse", "--short", "HEAD")}
+    assert R.staleness(doc, repo=tmp_path) is None
+    (tmp_path / "README.md").write_text("y\n")
+    git("commit", "-q", "-am", "docs only")
+    assert R.staleness(doc, repo=tmp_path) is None
+    (tmp_path / "leglib" / "design" / "gainmap.py").write_text("a = 2\n")
+    git("commit", "-q", "-am", "the map changes")
+    notice = R.staleness(doc, repo=tmp_path)
+    assert notice.startswith("Made by an older version: 1 commit(s) since " + doc["commit"])
+    assert "the map changes" in notice and "make robustness" in notice
+    assert "does not have" in R.staleness({"commit": "0123abc"}, repo=tmp_path)
+    assert "does not say which commit" in R.staleness({"commit": None}, repo=tmp_path)
