@@ -199,6 +199,20 @@ def test_virtual_clock_is_fast_and_realtime_mode_paces():
     assert rt.time >= 0.2 - 1e-9
 
 
+def test_a_realtime_sleep_takes_its_seconds_after_a_busy_host():
+    """The board runs on while the host is busy; a sleep that follows still waits all its
+    seconds from the call, as a real host's does (it waited only the rest: 0.15 s of 0.2 s
+    after 50 ms of host work)."""
+    rt = V.VirtualODrive(realtime=True)
+    t = time.monotonic()
+    while time.monotonic() - t < 0.05:   # the host busy, the virtual board idle
+        pass
+    t0 = time.monotonic()
+    rt.sleep(0.2)
+    assert time.monotonic() - t0 >= 0.2 - 1e-3
+    assert rt.time >= 0.25 - 1e-3   # the 50 ms the board ran on, then the 0.2 s asked for
+
+
 def test_each_transaction_costs_latency(odrv):
     t0 = odrv.time
     for _ in range(100):

@@ -424,6 +424,8 @@ class VirtualODrive:
         if not math.isfinite(seconds):
             raise ValueError(f"sleep: seconds must be finite, got {seconds!r}")
         self._check_link()
+        if self.realtime:   # the board ran on while the host was busy: catch up first, so the
+            self._pace()    # sleep's seconds start now (a real host's sleep takes all of them)
         self._advance(seconds, progress=True)
         if self.realtime:
             self._pace()
