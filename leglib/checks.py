@@ -9,13 +9,16 @@ from __future__ import annotations
 
 import math
 import numbers
+import os
+import stat
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from .errors import ArgumentError
 
-__all__ = ["number", "integer", "boolean", "real_array"]
+__all__ = ["number", "integer", "boolean", "real_array", "text_file"]
 
 
 def _short(value: Any, limit: int = 60) -> str:
@@ -91,3 +94,46 @@ def real_array(value, name: str, error=ArgumentError, *, ndim: int | None = None
     if finite and not np.all(np.isfinite(a)):
         raise error(f"{name} must hold finite numbers only (it has NaN or inf)")
     return a
+
+
+def text_file(path, what: str, error=ArgumentError, *, form: str = "", max_bytes: int = 1 << 20) -> str:
+    """The UTF-8 text of the regular file ``path`` of at most ``max_bytes``, else ``error``
+    naming the file (and the line of a byte that is not UTF-8). A directory, a FIFO or a
+    device is never read (a FIFO swapped in after the check cannot block the open either).
+
+    Parameters
+    ----------
+    path : the file
+    what : what the file is, for the messages ("design file", "spec", "parameter file")
+    error : the error class raised
+    form : its format, for the messages ("JSON", "TOML"), or ""
+    max_bytes : the largest file read
+    """
+    path = Path(path)
+    regular = f"a {what} is a regular {form + ' ' if form else ''}file"
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        raise error(f"{path}: no such {what}") from None
+    except OSError as exc:
+        raise error(f"{path}: cannot read {what} ({exc.strerror})") from None
+    if not stat.S_ISREG(st.st_mode):
+        what_it_is = "a directory, not a regular file" if stat.S_ISDIR(st.st_mode) else "not a regular file"
+        raise error(f"{path}: {what_it_is}; {regular}")
+    if st.st_size > max_bytes:
+        raise error(f"{path}: {st.st_size} bytes; a {what} is at most {max_bytes}")
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+        with os.fdopen(fd, "rb") as fh:
+            if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
+                raise error(f"{path}: not a regular file; {regular}")
+            raw = fh.read(max_bytes + 1)
+    except OSError as exc:
+        raise error(f"{path}: cannot read {what} ({exc.strerror})") from None
+    if len(raw) > max_bytes:
+        raise error(f"{path}: more than {max_bytes} bytes; a {what} is at most {max_bytes}")
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise error(f"{path}:{line}: not UTF-8 text (byte 0x{raw[exc.start]:02x})") from None

@@ -26,7 +26,6 @@ import datetime as _dt
 import json
 import math
 import os
-import stat
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -299,42 +298,10 @@ def save(path: str | Path, design, *, observer_factor: float | None = None, line
     return path
 
 
-def _read_text(path: Path) -> str:
-    """The text of a regular file of at most :data:`MAX_BYTES`; DesignFileError otherwise
-    (a directory, a FIFO or a device is never opened for reading, so none can block)."""
-    try:
-        st = path.stat()
-    except FileNotFoundError:
-        raise DesignFileError(f"{path}: no such design file") from None
-    except OSError as exc:
-        raise DesignFileError(f"{path}: cannot read design file ({exc.strerror})") from None
-    if not stat.S_ISREG(st.st_mode):
-        what = "a directory" if stat.S_ISDIR(st.st_mode) else "not a regular file"
-        raise DesignFileError(f"{path}: {what}; a design file is a regular JSON file")
-    if st.st_size > MAX_BYTES:
-        raise DesignFileError(f"{path}: {st.st_size} bytes; a design file is at most {MAX_BYTES}")
-    try:
-        # O_NONBLOCK: a file swapped for a FIFO after the stat cannot block the open
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-        with os.fdopen(fd, "rb") as fh:
-            if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
-                raise DesignFileError(f"{path}: not a regular file; a design file is a regular JSON file")
-            raw = fh.read(MAX_BYTES + 1)
-    except OSError as exc:
-        raise DesignFileError(f"{path}: cannot read design file ({exc.strerror})") from None
-    if len(raw) > MAX_BYTES:
-        raise DesignFileError(f"{path}: more than {MAX_BYTES} bytes; a design file is at most {MAX_BYTES}")
-    try:
-        return raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = raw[:exc.start].count(b"\n") + 1
-        raise DesignFileError(f"{path}:{line}: not UTF-8 text (byte 0x{raw[exc.start]:02x})") from None
-
-
 def read(path: str | Path) -> dict:
     """The raw content of a design file, its ``kind``, ``format`` and ``provenance`` checked."""
     path = Path(path)
-    text = _read_text(path)
+    text = checks.text_file(path, "design file", DesignFileError, form="JSON", max_bytes=MAX_BYTES)
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:

@@ -28,7 +28,6 @@ import itertools
 import json
 import math
 import re
-import stat
 import sys
 import time
 import tomllib
@@ -37,6 +36,7 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
+from .. import checks
 from ..errors import LeglibError, SpecError
 from ..files.atomic import write_bytes_atomic, write_json_atomic
 from .run import NOTEBOOK_DIR, execute
@@ -56,28 +56,6 @@ def _did_you_mean(name, known) -> str:
 def _short(value, limit: int = 60) -> str:
     text = repr(value)
     return text if len(text) <= limit else text[:limit] + "..."
-
-
-def _read_spec_text(path: Path) -> str:
-    try:
-        st = path.stat()
-    except FileNotFoundError:
-        raise SpecError(f"{path}: spec not found") from None
-    except OSError as exc:
-        raise SpecError(f"{path}: cannot read spec ({exc.strerror})") from None
-    if not stat.S_ISREG(st.st_mode):
-        raise SpecError(f"{path}: not a regular file")
-    if st.st_size > MAX_SPEC_BYTES:
-        raise SpecError(f"{path}: {st.st_size} bytes; a spec is at most {MAX_SPEC_BYTES}")
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise SpecError(f"{path}: cannot read spec ({exc.strerror})") from None
-    try:
-        return raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = raw[:exc.start].count(b"\n") + 1
-        raise SpecError(f"{path}:{line}: not UTF-8 text (byte 0x{raw[exc.start]:02x})") from None
 
 
 _INSPECTED: dict = {}
@@ -138,7 +116,7 @@ def load_spec(path: str | Path) -> dict:
     values' ranges are checked by each notebook's first cell.
     """
     path = Path(path)
-    text = _read_spec_text(path)
+    text = checks.text_file(path, "spec", SpecError, form="TOML", max_bytes=MAX_SPEC_BYTES)
     try:
         spec = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

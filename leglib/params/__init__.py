@@ -36,7 +36,6 @@ import dataclasses
 import difflib
 import math
 import os
-import stat
 import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
@@ -45,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import checks
 from ..errors import ParameterError
 
 # the parameter files shipped with leglib (package data), and the user's own directories
@@ -194,24 +194,7 @@ def _check_value(path: str, key: str, value: Any, check: str) -> float | int:
 def _read_toml(path: Path) -> dict:
     """The TOML document at ``path``; ParameterError for anything but a readable regular
     UTF-8 TOML file of sane size."""
-    try:
-        st = path.stat()
-    except FileNotFoundError:
-        raise ParameterError(f"{path}: parameter file not found") from None
-    except OSError as exc:
-        raise ParameterError(f"{path}: cannot read parameter file ({exc.strerror})") from None
-    if not stat.S_ISREG(st.st_mode):
-        raise ParameterError(f"{path}: not a regular file")
-    if st.st_size > _MAX_TOML_BYTES:
-        raise ParameterError(f"{path}: {st.st_size} bytes; a parameter file is at most {_MAX_TOML_BYTES}")
-    try:
-        raw = path.read_bytes()
-        text = raw.decode("utf-8")
-    except OSError as exc:
-        raise ParameterError(f"{path}: cannot read parameter file ({exc.strerror})") from None
-    except UnicodeDecodeError as exc:
-        line = raw[:exc.start].count(b"\n") + 1
-        raise ParameterError(f"{path}:{line}: not UTF-8 text (byte 0x{raw[exc.start]:02x})") from None
+    text = checks.text_file(path, "parameter file", ParameterError, form="TOML", max_bytes=_MAX_TOML_BYTES)
     try:
         return tomllib.loads(text), text
     except tomllib.TOMLDecodeError as exc:

@@ -211,7 +211,7 @@ def test_files_that_cannot_be_design_files_are_refused_by_name(tmp_path):
     latin.write_bytes(b'{"note": "caf\xe9"}')
     with pytest.raises(DesignFileError, match=r"latin.json:1: not UTF-8 text \(byte 0xe9\)"):
         designs.load(latin)
-    with pytest.raises(DesignFileError, match=f"{tmp_path}: a directory; a design file is a regular JSON file"):
+    with pytest.raises(DesignFileError, match=f"{tmp_path}: a directory, not a regular file; a design file is a regular JSON file"):
         designs.load(tmp_path)
     with pytest.raises(DesignFileError, match="/dev/zero: not a regular file"):
         designs.load("/dev/zero")
