@@ -170,35 +170,34 @@ class C(Store):
 
 
 @dataclass(frozen=True)
-class S(Store):
-    """A slot of the kernel's float state, ``st.AS[0, a, slot]`` (``layout.S_*``);
-    read-only unless ``writable``."""
+class _Slot(Store):
+    """A slot of one of the kernel's per-axis state arrays (``ARRAY``: ``st.AS`` or
+    ``st.AI``), read-only unless ``writable``."""
 
+    ARRAY = ""
     slot: int
     writable: bool = False
 
     def bind(self, dev, a, kind):
-        st, i, slot = dev.st, _slot_axis(a), self.slot
+        st, name, i, slot = dev.st, self.ARRAY, _slot_axis(a), self.slot
 
         def set_(v):
-            st.AS[0, i, slot] = v
-        return (lambda: kind(st.AS[0, i, slot])), (set_ if self.writable else None)
+            getattr(st, name)[0, i, slot] = v
+        return (lambda: kind(getattr(st, name)[0, i, slot])), (set_ if self.writable else None)
 
 
 @dataclass(frozen=True)
-class I(Store):  # noqa: E742 - named as the layout's I_ slots, beside C and S
-    """A slot of the kernel's int state, ``st.AI[0, a, slot]`` (``layout.I_*``);
-    read-only unless ``writable``."""
+class S(_Slot):
+    """A slot of the kernel's float state, ``st.AS[0, a, slot]`` (``layout.S_*``)."""
 
-    slot: int
-    writable: bool = False
+    ARRAY = "AS"
 
-    def bind(self, dev, a, kind):
-        st, i, slot = dev.st, _slot_axis(a), self.slot
 
-        def set_(v):
-            st.AI[0, i, slot] = v
-        return (lambda: kind(st.AI[0, i, slot])), (set_ if self.writable else None)
+@dataclass(frozen=True)
+class I(_Slot):  # noqa: E742 - named as the layout's I_ slots, beside C and S
+    """A slot of the kernel's int state, ``st.AI[0, a, slot]`` (``layout.I_*``)."""
+
+    ARRAY = "AI"
 
 
 @dataclass(frozen=True)
