@@ -5,11 +5,11 @@ file whose code it follows (fw-v0.5.6 unless marked):
 
 - ``encoder.cpp``: :func:`encoder_counts` (the reading as the encoder keeps it) and
   :func:`encoder_pll` (the position/velocity estimator);
-- ``controller.cpp``: :func:`overspeed`, :func:`velocity_command` (position P with the
-  velocity limit), :func:`torque_command`, :func:`torque_limit`, :func:`integrator_step`
-  (the velocity integrator's anti-windup);
-- ``motor.cpp``: :func:`current_loop` (the current controller as a first-order lag),
-  :func:`current_violation`, :func:`motor_bus_current`;
+- ``controller.cpp``: :func:`overspeed`, :func:`torque_command`, :func:`torque_limit`, :func:`integrator_step`
+  (the velocity integrator's anti-windup), :func:`clamp` (``std::clamp``);
+- ``utils.hpp``: :func:`wrap_pm`, :func:`fmodf_pos` (the circular setpoints' arithmetic);
+- ``motor.cpp``: :func:`max_torque` (max_available_torque), :func:`current_loop` (the current
+  controller as a first-order lag), :func:`current_violation`, :func:`motor_bus_current`;
 - ``low_level.cpp``: :func:`brake_current`, :func:`bus_fault`.
 
 The reference tick (:func:`leglib.twin.kernel._run_block`) and the vectorized one
@@ -27,7 +27,6 @@ import numpy as np
 from numba import njit
 
 from ..kernelmath import py_max, py_min, select
-from .layout import CURRENT_LIM_MARGIN
 
 TWO_PI = 2.0 * math.pi
 
@@ -60,19 +59,20 @@ def encoder_pll(pe0, ve0, counts, dt, kp, ki, inv_cpr):
 # -- controller.cpp ---------------------------------------------------------------------
 
 @njit(cache=True, inline="always")
-def overspeed(armed, ve, vel_limit, tolerance):
-    """controller.cpp:331-341: |vel_estimate| above vel_limit * vel_limit_tolerance while
-    the controller runs (``armed``) is an OVERSPEED error."""
-    return armed & (abs(ve) > vel_limit * tolerance)
+def clamp(v, lo, hi):
+    """``std::clamp(v, lo, hi)`` as libstdc++ computes it (``lo`` when ``v < lo``, else ``hi``
+    when ``hi < v``, else ``v``): what the firmware's limits do, also with ``lo > hi`` (a
+    negative limit, which the firmware stores as written). For ``lo <= hi`` it is
+    ``min(max(v, lo), hi)``, bit for bit."""
+    return select(v < lo, lo, select(hi < v, hi, v))
 
 
 @njit(cache=True, inline="always")
-def velocity_command(pos_sp, pe, vel_sp_in, pos_gain, vel_limit, position):
-    """controller.cpp:287,295-328: the velocity setpoint clamped to vel_limit, plus in position
-    control pos_gain times the position error, the sum clamped again [turn/s]."""
-    vel_sp = py_min(py_max(vel_sp_in, -vel_limit), vel_limit)
-    vel_des = select(position, pos_gain * (pos_sp - pe) + vel_sp, vel_sp)
-    return py_min(py_max(vel_des, -vel_limit), vel_limit)
+def overspeed(checked, ve, vel_limit, tolerance):
+    """controller.cpp:331-341: |vel_estimate| above vel_limit * vel_limit_tolerance is an
+    OVERSPEED error wherever the controller runs with the check enabled (``checked``: on
+    0.5.6 every tick in every state, main.cpp:438-446; on 0.5.1 in closed loop)."""
+    return checked & (abs(ve) > tolerance * vel_limit)
 
 
 @njit(cache=True, inline="always")
@@ -100,7 +100,31 @@ def integrator_step(integrator, limited, gain, dt, verr, lim):
     return py_min(py_max(integ, -lim), lim)
 
 
+# -- utils.hpp --------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def wrap_pm(x, y):
+    """utils.hpp:123-130: ``x`` wrapped into [-y/2, y/2] (x minus the nearest multiple of
+    ``y``, ties to even as the FPU's round-to-nearest)."""
+    return x - np.rint(x / y) * y
+
+
+@njit(cache=True, inline="always")
+def fmodf_pos(x, y):
+    """utils.hpp:133-137: ``x`` wrapped into [0, y)."""
+    r = wrap_pm(x, y)
+    return select(r < 0.0, r + y, r)
+
+
 # -- motor.cpp --------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def max_torque(current_lim, max_current, kt, torque_lim):
+    """motor.cpp:365-394: the largest torque the motor may give [N*m]: the effective current
+    limit (current_lim capped by the current sense's range, motor.cpp:372) times the torque
+    constant, clamped to [0, torque_lim]."""
+    ilim = py_min(current_lim, max_current)
+    return clamp(ilim * kt, 0.0, torque_lim)
 
 @njit(cache=True, inline="always")
 def current_loop(iq0, alpha, torque, inv_kt):
@@ -110,9 +134,11 @@ def current_loop(iq0, alpha, torque, inv_kt):
 
 
 @njit(cache=True, inline="always")
-def current_violation(iq_measured, current_lim):
-    """motor.cpp:635-643: a measured current beyond current_lim + current_lim_margin."""
-    return abs(iq_measured) > current_lim + CURRENT_LIM_MARGIN
+def current_violation(iq_measured, current_lim, max_current, margin):
+    """motor.cpp:635-643: a measured current beyond the effective current limit plus
+    current_lim_margin (Inorm^2 > Itrip^2; with one current component, |Iq| > Itrip)."""
+    itrip = py_min(current_lim, max_current) + margin
+    return iq_measured * iq_measured > itrip * itrip
 
 
 @njit(cache=True, inline="always")

@@ -29,16 +29,24 @@ from .layout import (
     AXIS_ERROR_MOTOR_FAILED,
     C_BRAKE_ON,
     C_BRAKE_R,
+    C_CIRCULAR,
+    C_CONTROL_MODE,
+    C_CPR,
     C_CURRENT_BW,
     C_DC_MAX_NEG,
     C_DC_MAX_POS,
+    C_EN_GAIN_SCHED,
+    C_EN_OVERSPEED,
+    C_EN_VEL_LIMIT,
     C_ENCODER_BW,
+    C_FW_056,
     C_INPUT_MODE,
     C_KT,
     C_MAX_REGEN,
     C_REGEN_ERR_STYLE,
     C_VBUS,
     C_WD_ENABLE,
+    CONTROL_MODE_POSITION,
     CONTROLLER_ERROR_OVERSPEED,
     F_ENC_ON,
     G_BRAKE_I,
@@ -46,6 +54,7 @@ from .layout import (
     G_BRAKE_R,
     G_DCN,
     G_DCP,
+    G_FW056,
     G_IBUS,
     G_IBUS_AXES,
     G_INV_BRAKE_R,
@@ -54,16 +63,19 @@ from .layout import (
     G_STYLE,
     G_VBUS,
     I_AXIS_ERR,
+    I_CONNECTED,
     I_COUNTS,
     I_CTRL_ERR,
     I_MODE,
     I_MOTOR_ERR,
     I_SYS_ERR,
+    I_TQ_PRESENT,
     INPUT_MODE_PASSTHROUGH,
     K_AE,
     K_ALPHA,
     K_CLIM,
     K_FROM_C,
+    K_INVCPR,
     K_INVKT,
     K_IPOS,
     K_ITQ,
@@ -71,8 +83,11 @@ from .layout import (
     K_KI,
     K_KP,
     K_KT,
+    K_MARGIN,
+    K_MAXI,
     K_OFF,
     K_PG,
+    K_TLIM,
     K_VG,
     K_VIG,
     K_VIL,
@@ -85,11 +100,14 @@ from .layout import (
     MOTOR_ERROR_DC_BUS_OVER_CURRENT,
     MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT,
     MOTOR_ERROR_SYSTEM_LEVEL,
+    MOTOR_ERROR_UNKNOWN_TORQUE,
+    MOTOR_ERROR_UNKNOWN_VOLTAGE_COMMAND,
     N_FROWS,
     N_IROWS,
     N_K,
     N_V,
     N_W,
+    N_WX,
     ODRIVE_ERROR_DC_BUS_OVER_CURRENT,
     ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT,
     R_AB,
@@ -107,6 +125,8 @@ from .layout import (
     R_V1,
     R_W0,
     R_W1,
+    R_WX0,
+    R_WX1,
     S_BRAKE_I,
     S_COUNT_F,
     S_IBUS,
@@ -117,6 +137,7 @@ from .layout import (
     S_OSC,
     S_POS_EST,
     S_POS_SP,
+    S_TQ_OUT,
     S_TQ_SP,
     S_VEL_EST,
     S_VEL_SP,
@@ -128,6 +149,7 @@ from .layout import (
     V_OSC,
     V_PE,
     V_PSP,
+    V_TQOUT,
     V_TSP,
     V_VE,
     V_VSP,
@@ -136,22 +158,25 @@ from .layout import (
     W_CTRLERR,
     W_MODE,
     W_MOTERR,
+    WX_CONN,
+    WX_TQP,
 )
 from .mechanics import _at, _mechanics_plain
 from .rng import _normal
 from .stages import (
     brake_current,
     bus_fault,
+    clamp,
     current_loop,
     current_violation,
     encoder_counts,
     encoder_pll,
     integrator_step,
+    max_torque,
     motor_bus_current,
     overspeed,
     torque_command,
     torque_limit,
-    velocity_command,
 )
 
 
@@ -159,7 +184,9 @@ from .stages import (
 def _vector_block(b0, b1, FR, C, AI):
     """Whether legs b0..b1-1 of a plain block (see :func:`_plain_block`) can take
     :func:`_run_block_vector`: no encoder reading error, and every axis in position control
-    or IDLE with its inputs passed through and no watchdog."""
+    (configured, and armed or IDLE) with its inputs passed through, no watchdog, and the
+    controller's optional features at their defaults (velocity limit and overspeed check
+    on, no gain scheduling, no circular setpoints)."""
     for b in range(b0, b1):
         if FR[b, F_ENC_ON] > 0.0:
             return False
@@ -169,17 +196,21 @@ def _vector_block(b0, b1, FR, C, AI):
                 return False
             if C[b, a, C_INPUT_MODE] != INPUT_MODE_PASSTHROUGH or C[b, a, C_WD_ENABLE] > 0.0:
                 return False
+            if C[b, a, C_CONTROL_MODE] != CONTROL_MODE_POSITION or C[b, a, C_CIRCULAR] > 0.0:
+                return False
+            if not (C[b, a, C_EN_VEL_LIMIT] > 0.0 and C[b, a, C_EN_OVERSPEED] > 0.0) or C[b, a, C_EN_GAIN_SCHED] > 0.0:
+                return False
     return True
 
 
 @njit(cache=True, inline="always")
-def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, cpr, inv_cpr, enc_noise,
-                 cur_noise, quantize, N, kt_true, r_phase, inv_vbus):
+def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, cpr, enc_noise,
+                 cur_noise, quantize, N, kt_true, r_phase, inv_vbus, fw056):
     """One tick of axis ``a`` (a constant) of leg ``i`` of a vectorized block, its joint at
-    ``q``: what the per-leg controller of :func:`_run_block` does for an axis in position
-    control or IDLE with passthrough inputs, the same operations in the same order,
+    ``q``: what the per-leg tick of :func:`_run_block` does for an axis in position
+    control, armed or IDLE, with passthrough inputs, the same operations in the same order,
     branches turned into selects. Returns (rng, joint torque, bus current, abort code)."""
-    rv, rk, rw = R_V0 + a * N_V, R_K0 + a * N_K, R_W0 + a * N_W
+    rv, rk, rw, rx = R_V0 + a * N_V, R_K0 + a * N_K, R_W0 + a * N_W, R_WX0 + a * N_WX
     # encoder and PLL: every tick, IDLE included
     turns = dirn * (q - q_rest) * turns_per_rad
     rng1, nz = _normal(rng)
@@ -187,24 +218,45 @@ def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, c
     counts, counts_i = encoder_counts(raw, FB[_at(rk + K_OFF, i)], quantize)
     pe0 = FB[_at(rv + V_PE, i)]
     ve0 = FB[_at(rv + V_VE, i)]
-    pe, ve = encoder_pll(pe0, ve0, counts, dt, FB[_at(rk + K_KP, i)], FB[_at(rk + K_KI, i)], inv_cpr)
-    # the board's check, then overspeed
+    pe, ve = encoder_pll(pe0, ve0, counts, dt, FB[_at(rk + K_KP, i)], FB[_at(rk + K_KI, i)],
+                         FB[_at(rk + K_INVCPR, i)])
+    # the board's check
     mode0 = IB[_at(rw + W_MODE, i)]
     axis_err0 = IB[_at(rw + W_AXERR, i)]
     mode = select(axis_err0 != 0, MODE_IDLE, mode0)
+    armed = mode != MODE_IDLE
+    # the controller: every tick on 0.5.6, in closed loop on 0.5.1; its estimates the
+    # encoder's once connected, else 0
+    connected = IB[_at(rx + WX_CONN, i)] != 0
+    ctrl = fw056 | armed
+    pe_c = select(connected, pe, 0.0)
+    ve_c = select(connected, ve, 0.0)
     vel_limit = FB[_at(rk + K_VL, i)]
-    over = overspeed(mode != MODE_IDLE, ve, vel_limit, FB[_at(rk + K_VTOL, i)])
-    ctrl_err = IB[_at(rw + W_CTRLERR, i)] | select(over, CONTROLLER_ERROR_OVERSPEED, 0)
-    axis_err = axis_err0 | select(over, AXIS_ERROR_CONTROLLER_FAILED, 0)
-    active = (mode != MODE_IDLE) & (not over)
-    # position control with passthrough inputs
-    pos_sp = FB[_at(rk + K_IPOS, i)]
-    vel_in = FB[_at(rk + K_IVEL, i)]
-    tq_in = FB[_at(rk + K_ITQ, i)]
     kt = FB[_at(rk + K_KT, i)]
     vel_gain = FB[_at(rk + K_VG, i)]
     current_lim = FB[_at(rk + K_CLIM, i)]
-    t_lim = current_lim * kt
+    max_i = FB[_at(rk + K_MAXI, i)]
+    t_lim = max_torque(current_lim, max_i, kt, FB[_at(rk + K_TLIM, i)])
+    pos_sp = FB[_at(rk + K_IPOS, i)]
+    vel_in = FB[_at(rk + K_IVEL, i)]
+    tq_in = FB[_at(rk + K_ITQ, i)]
+    vel_sp = select(fw056, clamp(vel_in, -vel_limit, vel_limit), vel_in)
+    tq_sp = select(fw056, clamp(tq_in, -t_lim, t_lim), tq_in)
+    over = ctrl & overspeed(True, ve_c, vel_limit, FB[_at(rk + K_VTOL, i)])
+    ok = ctrl & (not over)
+    vel_des = clamp(vel_sp + FB[_at(rk + K_PG, i)] * (pos_sp - pe_c), -vel_limit, vel_limit)
+    verr = vel_des - ve_c
+    integ0 = FB[_at(rv + V_INT, i)]
+    torque, limited = torque_limit(torque_command(vel_gain, verr, integ0, tq_sp), t_lim)
+    integ = integrator_step(integ0, limited, FB[_at(rk + K_VIG, i)], dt, verr, FB[_at(rk + K_VIL, i)])
+    unknown_torque = over & fw056 & connected
+    ctrl_err = IB[_at(rw + W_CTRLERR, i)] | select(over, CONTROLLER_ERROR_OVERSPEED, 0)
+    axis_err = axis_err0 | select(over, AXIS_ERROR_CONTROLLER_FAILED, 0) \
+        | select(unknown_torque & armed, AXIS_ERROR_MOTOR_FAILED, 0)
+    motor_err = IB[_at(rw + W_MOTERR, i)] | select(unknown_torque, MOTOR_ERROR_UNKNOWN_TORQUE, 0) \
+        | select(unknown_torque & armed, MOTOR_ERROR_UNKNOWN_VOLTAGE_COMMAND, 0)
+    active = armed & (not over)
+    # leglib's abort rule on an armed axis
     abort_error = FB[_at(rk + K_AE, i)]
     err = pos_sp - pe
     checked = active & (abort_error > 0.0)
@@ -215,17 +267,13 @@ def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, c
     n0, n1, n2, n3, n4, n5, unstable = _oscillation_step(o0, o1, o2, o3, o4, o5, err, 0.025 * abort_error)
     growing = osc_on & unstable
     code_a = select(too_far, ABORT_POSITION_ERROR, select(growing, ABORT_OSCILLATION, ABORT_NONE))
-    vel_des = velocity_command(pos_sp, pe, vel_in, FB[_at(rk + K_PG, i)], vel_limit, True)
-    verr = vel_des - ve
-    integ0 = FB[_at(rv + V_INT, i)]
-    torque, limited = torque_limit(torque_command(vel_gain, verr, integ0, tq_in), t_lim)
-    integ = integrator_step(integ0, limited, FB[_at(rk + K_VIG, i)], dt, verr, FB[_at(rk + K_VIL, i)])
+    # the motor
     iq0 = FB[_at(rv + V_IQ, i)]
     iq = current_loop(iq0, FB[_at(rk + K_ALPHA, i)], torque, FB[_at(rk + K_INVKT, i)])
     rng2, nz = _normal(rng1)
     iq_meas = iq + cur_noise * nz
-    violated = active & current_violation(iq_meas, current_lim)
-    motor_err = IB[_at(rw + W_MOTERR, i)] | select(violated, MOTOR_ERROR_CURRENT_LIMIT_VIOLATION, 0)
+    violated = active & current_violation(iq_meas, current_lim, max_i, FB[_at(rk + K_MARGIN, i)])
+    motor_err = motor_err | select(violated, MOTOR_ERROR_CURRENT_LIMIT_VIOLATION, 0)
     axis_err = axis_err | select(violated, AXIS_ERROR_MOTOR_FAILED, 0)
     iq = select(violated, 0.0, iq)
     tau = dirn * N * kt_true * iq
@@ -238,22 +286,28 @@ def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, c
     iqm0 = FB[_at(rv + V_IQM, i)]
     ibm0 = FB[_at(rv + V_IBM, i)]
     psp0, vsp0, tsp0 = FB[_at(rv + V_PSP, i)], FB[_at(rv + V_VSP, i)], FB[_at(rv + V_TSP, i)]
+    tqo0 = FB[_at(rv + V_TQOUT, i)]
     ctrl_err0 = IB[_at(rw + W_CTRLERR, i)]
     motor_err0 = IB[_at(rw + W_MOTERR, i)]
+    tqp0 = IB[_at(rx + WX_TQP, i)]
     run = alive & active
     idle = alive & (not active)
+    updated = alive & ctrl
+    done = alive & ok
     osc_new = run & osc_on
     FB[_at(rv + V_PE, i)] = select(alive, pe, pe0)
     FB[_at(rv + V_VE, i)] = select(alive, ve, ve0)
     FB[_at(rv + V_CNTF, i)] = select(alive, counts, cntf0)
     IB[_at(rw + W_COUNTS, i)] = select(alive, counts_i, counts_i0)
-    FB[_at(rv + V_INT, i)] = select(run, integ, select(idle, 0.0, integ0))
+    FB[_at(rv + V_INT, i)] = select(done, integ, integ0)
+    FB[_at(rv + V_TQOUT, i)] = select(done, torque, tqo0)
+    IB[_at(rx + WX_TQP, i)] = select(done, 1, select(alive, 0, tqp0))
     FB[_at(rv + V_IQ, i)] = select(run, iq, select(idle, 0.0, iq0))
     FB[_at(rv + V_IQM, i)] = select(run, iq_meas, select(idle, 0.0, iqm0))
     FB[_at(rv + V_IBM, i)] = select(run, ib, select(idle, 0.0, ibm0))
-    FB[_at(rv + V_PSP, i)] = select(run, pos_sp, psp0)
-    FB[_at(rv + V_VSP, i)] = select(run, vel_in, vsp0)
-    FB[_at(rv + V_TSP, i)] = select(run, tq_in, tsp0)
+    FB[_at(rv + V_PSP, i)] = select(updated, pos_sp, psp0)
+    FB[_at(rv + V_VSP, i)] = select(updated, vel_sp, vsp0)
+    FB[_at(rv + V_TSP, i)] = select(updated, tq_sp, tsp0)
     FB[_at(rv + V_OSC, i)] = select(osc_new, n0, o0)
     FB[_at(rv + V_OSC + 1, i)] = select(osc_new, n1, o1)
     FB[_at(rv + V_OSC + 2, i)] = select(osc_new, n2, o2)
@@ -273,16 +327,14 @@ def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, c
 @njit(cache=True, inline="always")
 def _stop_axis(i, a, FB, IB, fault, stop, motor_flag):
     """Axis ``a`` (a constant) of leg ``i`` of a vectorized block after the bus check: a
-    bus fault's error flags, and for a fault or an abort (``stop``) IDLE, no current, the
-    integrator cleared."""
+    bus fault's error flags, and for a fault or an abort (``stop``) IDLE, no current."""
     rv, rw = R_V0 + a * N_V, R_W0 + a * N_W
     motor_err0, axis_err0, mode0 = IB[_at(rw + W_MOTERR, i)], IB[_at(rw + W_AXERR, i)], IB[_at(rw + W_MODE, i)]
-    iq0, integ0 = FB[_at(rv + V_IQ, i)], FB[_at(rv + V_INT, i)]
+    iq0 = FB[_at(rv + V_IQ, i)]
     IB[_at(rw + W_MOTERR, i)] = motor_err0 | select(fault, motor_flag, 0)
     IB[_at(rw + W_AXERR, i)] = axis_err0 | select(fault, AXIS_ERROR_MOTOR_FAILED, 0)
     IB[_at(rw + W_MODE, i)] = select(stop, MODE_IDLE, mode0)
     FB[_at(rv + V_IQ, i)] = select(stop, 0.0, iq0)
-    FB[_at(rv + V_INT, i)] = select(stop, 0.0, integ0)
 
 
 @njit(cache=True, error_model="numpy")
@@ -298,10 +350,10 @@ def _control_vector(k, dt, FB, IB, nb, DRV):
     j_of_a0 = int(DRV[5])
     q_rest_joint0, q_rest_joint1 = DRV[3], DRV[4]
     turns_per_rad = N / (2.0 * math.pi)
-    inv_cpr = 1.0 / cpr
     for i in range(nb):
         alive = IB[_at(R_DEAD, i)] == 0
         inv_vbus = FB[_at(R_G + G_INV_VBUS, i)]
+        fw056 = FB[_at(R_G + G_FW056, i)] > 0.0
         rng = np.uint64(IB[_at(R_RNG, i)])
         ibus_sum = 0.0
         # the joints' angles, read from fixed rows (a row chosen at run time would keep
@@ -311,11 +363,11 @@ def _control_vector(k, dt, FB, IB, nb, DRV):
         rng, tau_axis0, ib0, code0 = _axis_vector(
             i, 0, FB, IB, select(axis0_on_joint0, q_joint0, q_joint1),
             select(axis0_on_joint0, q_rest_joint0, q_rest_joint1), rng, alive, dt, dirn, turns_per_rad, cpr,
-            inv_cpr, enc_noise, cur_noise, quantize, N, kt_true, r_phase, inv_vbus)
+            enc_noise, cur_noise, quantize, N, kt_true, r_phase, inv_vbus, fw056)
         rng, tau_axis1, ib1, code1 = _axis_vector(
             i, 1, FB, IB, select(axis0_on_joint0, q_joint1, q_joint0),
             select(axis0_on_joint0, q_rest_joint1, q_rest_joint0), rng, alive, dt, dirn, turns_per_rad, cpr,
-            inv_cpr, enc_noise, cur_noise, quantize, N, kt_true, r_phase, inv_vbus)
+            enc_noise, cur_noise, quantize, N, kt_true, r_phase, inv_vbus, fw056)
         ibus_sum += ib0
         ibus_sum += ib1
         code = select(code1 != ABORT_NONE, code1, code0)
@@ -372,8 +424,9 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT,
     FB = np.zeros(N_FROWS * LANES)
     IB = np.zeros(N_IROWS * LANES, np.int64)
     f_slots = (S_POS_EST, S_VEL_EST, S_INTEGRATOR, S_IQ, S_IQ_MEAS, S_COUNT_F, S_POS_SP, S_VEL_SP, S_TQ_SP,
-               S_IBUS_MOTOR, S_OSC, S_OSC + 1, S_OSC + 2, S_OSC + 3, S_OSC + 4, S_OSC + 5)
+               S_IBUS_MOTOR, S_TQ_OUT, S_OSC, S_OSC + 1, S_OSC + 2, S_OSC + 3, S_OSC + 4, S_OSC + 5)
     w_slots = (I_MODE, I_AXIS_ERR, I_CTRL_ERR, I_MOTOR_ERR, I_COUNTS)
+    wx_slots = (I_CONNECTED, I_TQ_PRESENT)
     for i in range(nb):
         b = b0 + i
         for n in range(5):
@@ -388,6 +441,8 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT,
                 FB[_at(rv + n, i)] = AS[b, a, f_slots[n]]
             for n in range(N_W):
                 IB[_at(rw + n, i)] = AI[b, a, w_slots[n]]
+            for n in range(N_WX):
+                IB[_at((R_WX0 if a == 0 else R_WX1) + n, i)] = AI[b, a, wx_slots[n]]
             for n in range(len(K_FROM_C)):
                 FB[_at(rk + K_FROM_C[n][0], i)] = C[b, a, K_FROM_C[n][1]]
             kp = 2.0 * C[b, a, C_ENCODER_BW]
@@ -395,6 +450,7 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT,
             FB[_at(rk + K_KI, i)] = 0.25 * kp * kp
             FB[_at(rk + K_ALPHA, i)] = 1.0 - math.exp(-C[b, a, C_CURRENT_BW] * dt)
             FB[_at(rk + K_INVKT, i)] = 1.0 / C[b, a, C_KT]
+            FB[_at(rk + K_INVCPR, i)] = 1.0 / C[b, a, C_CPR]
         FB[_at(R_G + G_BRAKE_ON, i)] = C[b, 0, C_BRAKE_ON]
         FB[_at(R_G + G_BRAKE_R, i)] = C[b, 0, C_BRAKE_R]
         FB[_at(R_G + G_MAX_REGEN, i)] = C[b, 0, C_MAX_REGEN]
@@ -402,6 +458,7 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT,
         FB[_at(R_G + G_DCN, i)] = C[b, 0, C_DC_MAX_NEG]
         FB[_at(R_G + G_VBUS, i)] = C[b, 0, C_VBUS]
         FB[_at(R_G + G_STYLE, i)] = C[b, 0, C_REGEN_ERR_STYLE]
+        FB[_at(R_G + G_FW056, i)] = C[b, 0, C_FW_056]
         FB[_at(R_G + G_INV_VBUS, i)] = 1.0 / C[b, 0, C_VBUS]
         FB[_at(R_G + G_INV_BRAKE_R, i)] = 1.0 / C[b, 0, C_BRAKE_R]
         FB[_at(R_G + G_IBUS, i)] = AS[b, 0, S_IBUS]
@@ -447,6 +504,8 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT,
                 AS[b, a, f_slots[n]] = FB[_at(rv + n, i)]
             for n in range(N_W):
                 AI[b, a, w_slots[n]] = IB[_at(rw + n, i)]
+            for n in range(N_WX):
+                AI[b, a, wx_slots[n]] = IB[_at((R_WX0 if a == 0 else R_WX1) + n, i)]
         AS[b, 0, S_IBUS] = FB[_at(R_G + G_IBUS, i)]
         AS[b, 0, S_BRAKE_I] = FB[_at(R_G + G_BRAKE_I, i)]
         AI[b, 0, I_SYS_ERR] = IB[_at(R_SYS, i)]

@@ -117,6 +117,8 @@ def test_save_configuration_refuses_while_armed_then_reboots(odrv):
     assert odrv.save_configuration() is False
     odrv.axis0.requested_state = V.AXIS_STATE_IDLE
     odrv.sleep(0.002)
+    odrv.axis0.encoder.set_linear_count(5000)          # encoder.cpp:141-154: far from 0
+    odrv.axis1.encoder.set_linear_count(-7000)
     before = [odrv.axis0.encoder.shadow_count, odrv.axis1.encoder.shadow_count]
     with pytest.raises(V.DeviceLostError):
         odrv.save_configuration()
@@ -132,7 +134,7 @@ def test_save_configuration_refuses_while_armed_then_reboots(odrv):
     assert odrv.axis1.motor.is_calibrated                            # ... unless pre_calibrated
     assert not odrv.axis0.encoder.is_ready and not odrv.axis1.encoder.is_ready
     after = [odrv.axis0.encoder.shadow_count, odrv.axis1.encoder.shadow_count]
-    assert max(map(abs, after)) < 50 and max(map(abs, before)) > 1000  # counts restart at 0
+    assert max(map(abs, after)) < 200 and min(map(abs, before)) > 4000  # counts restart at 0
     assert odrv.axis0.current_state == V.AXIS_STATE_IDLE and odrv.axis0.error == 0
     _closed_loop(odrv, odrv.axis1)
     assert odrv.axis1.current_state == V.AXIS_STATE_IDLE and odrv.axis1.error & V.AXIS_ERROR_INVALID_STATE
@@ -202,13 +204,16 @@ def test_invalid_state_is_cleared_by_a_new_request():
 
 # -- rows 4, 5: calibration as motion, the count re-reference ---------------------------
 
-def test_calibration_swings_the_leg_and_re_references_the_counts():
+def test_calibration_swings_the_leg_and_keeps_the_counts_in_the_boot_frame():
     """encoder.hpp:22-23 (16 pi rad at 4 pi rad/s: 8/11 motor turn, 87 deg of joint),
-    encoder.cpp:329,378-447 (1 s lock, forward and back), encoder.cpp:344 (shadow_count :=
-    count_in_cpr), axis.cpp:472-479 (states 4 -> 7 -> 1)."""
+    encoder.cpp:329,378-447 (1 s lock, forward and back), axis.cpp:472-479 (states 4 -> 7 ->
+    1). encoder.cpp:344 sets shadow_count := count_in_cpr, but the incremental encoder's
+    next update (encoder.cpp:480,657-662,762) adds the int16 difference to the timer's
+    count, which never moved: the counts stay in the boot frame (no whole-turn shift)."""
     odrv = _device(seed=5)
     start = np.degrees(odrv.st.X[0, [0, 2]]).copy()
     assert abs(odrv.axis0.encoder.shadow_count) <= 2 and abs(odrv.axis1.encoder.shadow_count) <= 2
+    boot_turns = [float(odrv.twin.encoder_turns(odrv.st, odrv.twin.axes.joint_of_axis(a))[0]) for a in (0, 1)]
     for a in (odrv.axis0, odrv.axis1):
         a.requested_state = V.AXIS_STATE_FULL_CALIBRATION_SEQUENCE
     swing, states, gaps = 0.0, set(), []
@@ -223,9 +228,26 @@ def test_calibration_swings_the_leg_and_re_references_the_counts():
     assert swing == pytest.approx(expected, abs=6.0)
     assert max(gaps) - min(gaps) < 15.0          # both links swung together: the stop stays closed
     assert odrv.axis0.encoder.is_ready and odrv.axis0.error == 0
-    # the count was wrapped into [0, cpr) at the start of the offset calibration
-    counts = [odrv.axis0.encoder.shadow_count, odrv.axis1.encoder.shadow_count]
-    assert any(c > 4000 // 2 for c in counts)   # a count just below 0 became one just below cpr
+    # the counts are the rotor's travel since boot, whatever count_in_cpr was
+    for a, ax in enumerate((odrv.axis0, odrv.axis1)):
+        turns = float(odrv.twin.encoder_turns(odrv.st, odrv.twin.axes.joint_of_axis(a))[0])
+        assert ax.encoder.shadow_count == pytest.approx((turns - boot_turns[a]) * 4000, abs=3)
+        assert abs(ax.encoder.shadow_count) < 4000 // 2          # near the start: no turn added
+        assert ax.encoder.count_in_cpr == ax.encoder.shadow_count % 4000
+
+
+def test_zeroing_after_calibration_gives_the_rest_pose():
+    """Whatever frame the counts are in, the zeroing step (read pos_estimate at rest) makes
+    the joint angles the rest pose's, on both firmwares."""
+    for seed, firmware in ((8, "0.5.6"), (9, "0.5.1")):
+        dev = lg.connect("virtual", seed=seed, firmware=firmware)
+        lg.configure(dev)
+        lg.calibrate(dev)
+        q_true = dev.sim.st.X[0, [0, 2]]
+        a1, a2 = dev.axes.axis_of_joint
+        q = [float(dev.axes.counts_to_joint(dev.counts(a1), 0)), float(dev.axes.counts_to_joint(dev.counts(a2), 1))]
+        # the leg rests within its friction dead band of where it rested at zeroing
+        assert np.degrees(np.abs(np.array(q) - q_true)).max() < 1.5, firmware
 
 
 def test_a_blocked_scan_fails_the_cpr_check(odrv):
