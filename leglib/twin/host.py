@@ -32,6 +32,7 @@ from .kernel import _run, _run_serial
 from .layout import (
     BELT_PHASE_PER_STEP,
     C_ABORT_ERROR,
+    C_BEMF_FF,
     C_BRAKE_ON,
     C_BRAKE_R,
     C_CAL_CURRENT,
@@ -52,6 +53,8 @@ from .layout import (
     C_FILTER_BW,
     C_FW_056,
     C_GAIN_SCHED_WIDTH,
+    C_IBUS_MAX,
+    C_IBUS_MIN,
     C_INERTIA,
     C_INPUT_MODE,
     C_INPUT_POS,
@@ -63,7 +66,10 @@ from .layout import (
     C_MAX_REGEN,
     C_MIRROR_AXIS,
     C_MIRROR_RATIO,
+    C_PHASE_L,
+    C_PHASE_R,
     C_POS_GAIN,
+    C_RWL_FF,
     C_TORQUE_LIM,
     C_TORQUE_MIRROR_RATIO,
     C_TORQUE_RAMP_RATE,
@@ -113,8 +119,11 @@ from .layout import (
     N_OSC,
     N_X,
     S_INTEGRATOR,
+    S_IQ,
     S_OSC,
     S_POS_EST,
+    S_V_INT,
+    S_V_PREV,
     VECTOR_LEGS,
     X_DPHI1,
     X_DPHI2,
@@ -208,6 +217,10 @@ def controller_defaults(C: np.ndarray, cpr: float) -> None:
     C[..., C_CURRENT_LIM_MARGIN] = CURRENT_LIM_MARGIN
     C[..., C_MAX_CURRENT] = max_measurable_current(60.0)
     C[..., C_CPR] = float(cpr)
+    C[..., C_BEMF_FF] = 0.0                         # motor.hpp:43-47
+    C[..., C_RWL_FF] = 0.0
+    C[..., C_IBUS_MIN] = -np.inf
+    C[..., C_IBUS_MAX] = np.inf
 
 
 def max_measurable_current(requested_current_range: float) -> float:
@@ -285,7 +298,7 @@ class Twin:
         self.DRV = np.array([ax.gear_ratio, ax.cpr, ax.direction, ax.q_rest[0], ax.q_rest[1],
                              ax.joint_of_axis(0), p.encoder_noise if noise else 0.0,
                              p.current_noise if noise else 0.0, motor.torque_constant, 1.0 if quantize else 0.0,
-                             float(motor.pole_pairs), motor.phase_resistance])
+                             float(motor.pole_pairs), motor.phase_resistance, motor.phase_inductance])
         self.state = self._initial_state(batch)
 
     def mount_payload(self, mounted: bool) -> None:
@@ -320,6 +333,10 @@ class Twin:
         C[:, :, C_INT_RESET_TORQUE] = 1.0
         C[:, :, C_CAL_CURRENT] = 10.0               # firmware default calibration_current
         controller_defaults(C, cpr=cfg.cpr)
+        # the current controller's R and L as a motor calibration measures them (motor.cpp:
+        # 416-509): the motor's own
+        C[:, :, C_PHASE_R] = self.motor.phase_resistance
+        C[:, :, C_PHASE_L] = self.motor.phase_inductance
         # the board as leglib configures it: brake resistor on, the firmware's bus limits
         C[:, 0, C_BRAKE_ON] = 1.0
         C[:, 0, C_BRAKE_R] = cfg.brake_resistance
@@ -445,6 +462,7 @@ class Twin:
             st.C[:, a, C_CONTROL_MODE] = MODE_POSITION
             st.AI[:, a, I_MODE] = MODE_POSITION
             st.AI[:, a, I_CONNECTED] = 1        # closed loop connects the estimates (axis.cpp:270-285)
+            st.AS[:, a, [S_V_PREV, S_V_INT, S_IQ]] = 0.0   # the current controller reset at arming (foc.cpp:47-53)
             st.AS[:, a, S_INTEGRATOR] = 0.0
             st.AS[:, a, S_OSC:S_OSC + N_OSC] = 0.0
         every = max(1, int(round(sample_period / self.dt)))

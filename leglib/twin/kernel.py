@@ -24,12 +24,14 @@ from ..abort import (
     ABORT_POSITION_ERROR,
     _oscillation_step,
 )
+from ..kernelmath import py_min
 from .effects import _encoder_error
 from .layout import (
     AXIS_ERROR_CONTROLLER_FAILED,
     AXIS_ERROR_MOTOR_FAILED,
     AXIS_ERROR_WATCHDOG_TIMER_EXPIRED,
     C_ABORT_ERROR,
+    C_BEMF_FF,
     C_BRAKE_ON,
     C_BRAKE_R,
     C_CAL_CURRENT,
@@ -53,6 +55,8 @@ from .layout import (
     C_FILTER_BW,
     C_FW_056,
     C_GAIN_SCHED_WIDTH,
+    C_IBUS_MAX,
+    C_IBUS_MIN,
     C_INERTIA,
     C_INPUT_MODE,
     C_INPUT_POS,
@@ -63,8 +67,11 @@ from .layout import (
     C_MAX_REGEN,
     C_MIRROR_AXIS,
     C_MIRROR_RATIO,
+    C_PHASE_L,
+    C_PHASE_R,
     C_POS_GAIN,
     C_REGEN_ERR_STYLE,
+    C_RWL_FF,
     C_TORQUE_LIM,
     C_TORQUE_MIRROR_RATIO,
     C_TORQUE_RAMP_RATE,
@@ -122,6 +129,8 @@ from .layout import (
     MOTOR_ERROR_CURRENT_LIMIT_VIOLATION,
     MOTOR_ERROR_DC_BUS_OVER_CURRENT,
     MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT,
+    MOTOR_ERROR_I_BUS_OUT_OF_RANGE,
+    MOTOR_ERROR_MODULATION_IS_NAN,
     MOTOR_ERROR_SYSTEM_LEVEL,
     MOTOR_ERROR_UNKNOWN_TORQUE,
     MOTOR_ERROR_UNKNOWN_VOLTAGE_COMMAND,
@@ -142,6 +151,7 @@ from .layout import (
     S_INTEGRATOR,
     S_IQ,
     S_IQ_MEAS,
+    S_IQ_SP,
     S_OSC,
     S_POS_CIRC,
     S_POS_EST,
@@ -150,9 +160,12 @@ from .layout import (
     S_TQ_SP,
     S_TT_T,
     S_TUNE_PHASE,
+    S_V_INT,
+    S_V_PREV,
     S_VEL_EST,
     S_VEL_SP,
     S_WD_TIMER,
+    V_MAX_PER_VBUS,
     X_PHI1,
 )
 from .mechanics import _at, _mechanics_leg, _mechanics_plain, _param_row, _plain_block
@@ -162,14 +175,18 @@ from .stages import (
     brake_current,
     bus_fault,
     clamp,
-    current_loop,
+    current_gains,
+    current_setpoint,
     current_violation,
     encoder_counts,
     encoder_pll,
     fmodf_pos,
+    foc_voltage,
     integrator_step,
     max_torque,
     motor_bus_current,
+    motor_current,
+    motor_plant,
     overspeed,
     torque_command,
     torque_limit,
@@ -202,7 +219,7 @@ def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
     unmodeled effects' parameters, the F_ indices, each off at zero); MECH[b] 0 five-bar,
     1 independent inertias; DRV = (gear_ratio, cpr, direction, q_rest1, q_rest2,
     joint_of_axis0, encoder_noise, current_noise, true torque constant, quantize, true pole
-    pairs, phase resistance [ohm]); TT[b, i, axis] a torque table applied
+    pairs, phase resistance [ohm], phase inductance [H]); TT[b, i, axis] a torque table applied
     to axes in torque mode, row i = tick // tt_period (ignored when it has no rows);
     REC[b, k] = (t, counts0, counts1, Iq0, Iq1) every ``rec_every`` ticks from row
     ``rec_offset``. The legs go in blocks of ``block``, a thread's unit of work (see
@@ -321,12 +338,17 @@ def _calibration_tick(b, a, i, turns, rng, dt, C, AS, FB, DRV, inv_vbus):
 
 
 @njit(cache=True, inline="always")
-def _disarmed(b, a, i, AS, AI, FB, DRV):
+def _disarmed(b, a, i, AS, AI, FB, DRV, iq_sp_idle, fw056):
     """An IDLE axis: no current, no torque on its joint. The controller's state is the
     controller's: on 0.5.6 it runs on while IDLE, on 0.5.1 it keeps its last values; both
-    reset it when the axis is armed again (motor.cpp:202, axis.cpp:290-294)."""
+    reset it when the axis is armed again (motor.cpp:202, axis.cpp:290-294). On 0.5.6 the
+    motor's update still turns the controller's torque into Iq's setpoint (``iq_sp_idle``:
+    0 when there is none, motor.cpp:513-552; fw-v0.5.1 keeps the last armed one)."""
     AI[b, a, I_MODE] = MODE_IDLE
     AS[b, a, S_IQ] = 0.0
+    AS[b, a, S_V_PREV] = 0.0
+    if fw056:
+        AS[b, a, S_IQ_SP] = iq_sp_idle
     AS[b, a, S_IQ_MEAS] = 0.0
     AS[b, a, S_IBUS_MOTOR] = 0.0
     FB[_at(R_TAU + _joint_of(a, DRV), i)] = 0.0
@@ -508,25 +530,56 @@ def _step_abort(b, a, mode, pe, C, AS):
 
 
 @njit(cache=True, inline="always")
-def _motor_tick(b, a, i, torque, ve, rng, C, AS, AI, FB, DRV, alpha, inv_kt, inv_vbus):
-    """motor.cpp: the current loop reaching the commanded torque's current, its measurement
-    (with noise) and the current-limit trip (motor.cpp:631-644), the torque on the joint (the
-    motor's true torque constant) and the motor's bus current. (rng, bus current)."""
-    iq = current_loop(AS[b, a, S_IQ], alpha, torque, inv_kt)
-    AS[b, a, S_IQ] = iq
+def _motor_tick(b, a, i, torque, ve, w_joint, rng, C, AS, AI, FB, DRV, inv_kt, inv_vbus, cc_kp, cc_ki_dt, vmax,
+                a_half, inv_r, m_half):
+    """motor.cpp:513-594 and foc.cpp:120-160 with the motor: the torque's current setpoint,
+    the current sampled (with noise) and checked against the trip (motor.cpp:631-644), the
+    current PI's voltage, and the phase current it drives through the motor's R and L
+    against its back-EMF (the rotor's true speed ``w_joint`` [rad/s of the joint]); the
+    torque on the joint from the period's mean current (the motor's true torque constant)
+    and the motor's bus current. (rng, bus current)."""
+    ilim = py_min(C[b, a, C_CURRENT_LIM], C[b, a, C_MAX_CURRENT])
+    iq_sp = current_setpoint(torque, inv_kt, ilim)
+    AS[b, a, S_IQ_SP] = iq_sp
+    i0 = AS[b, a, S_IQ]
     rng, nz = _normal(rng)
-    iq_meas = iq + DRV[7] * nz
+    iq_meas = i0 + DRV[7] * nz
     AS[b, a, S_IQ_MEAS] = iq_meas
     if current_violation(iq_meas, C[b, a, C_CURRENT_LIM], C[b, a, C_MAX_CURRENT], C[b, a, C_CURRENT_LIM_MARGIN]):
         AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_CURRENT_LIMIT_VIOLATION
         AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
         AI[b, a, I_MODE] = MODE_IDLE
         AS[b, a, S_IQ] = 0.0
-        iq = 0.0
+        AS[b, a, S_V_PREV] = 0.0
+        FB[_at(R_TAU + _joint_of(a, DRV), i)] = 0.0
+        AS[b, a, S_IBUS_MOTOR] = 0.0
+        return rng, 0.0
+    # feed-forwards (motor.cpp:567-586): the back-EMF from the estimated speed, R * Iq
+    v_ff = 0.0
+    if C[b, a, C_BEMF_FF] > 0.0:
+        v_ff += (2.0 / 3.0) * C[b, a, C_KT] * (TWO_PI * ve)
+    if C[b, a, C_RWL_FF] > 0.0:
+        v_ff += C[b, a, C_PHASE_R] * iq_sp
+    v, integ = foc_voltage(iq_sp, iq_meas, AS[b, a, S_V_INT], cc_kp, cc_ki_dt, v_ff, vmax)
+    AS[b, a, S_V_INT] = integ
+    if not v == v:        # foc.cpp:31-32 (gains from an uncalibrated R and L): disarmed
+        AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_MODULATION_IS_NAN
+        AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
+        AI[b, a, I_MODE] = MODE_IDLE
+        AS[b, a, S_IQ] = 0.0
+        AS[b, a, S_V_PREV] = 0.0
+        FB[_at(R_TAU + _joint_of(a, DRV), i)] = 0.0
+        AS[b, a, S_IBUS_MOTOR] = 0.0
+        return rng, 0.0
+    # the motor's back-EMF: its flux linkage (2/3) kt / pole_pairs times the electrical speed
+    e_bemf = (2.0 / 3.0) * DRV[8] * (DRV[2] * DRV[0] * w_joint)
+    i_next, i_mean = motor_current(i0, AS[b, a, S_V_PREV], v, e_bemf, a_half, inv_r, m_half)
+    AS[b, a, S_V_PREV] = v
+    AS[b, a, S_IQ] = i_next
     # the motor's own torque constant makes the torque; the configured one only converts
     # the torque command to a current
-    FB[_at(R_TAU + _joint_of(a, DRV), i)] = DRV[2] * DRV[0] * DRV[8] * iq
-    ib = motor_bus_current(DRV[11], iq, DRV[8], ve, inv_vbus)
+    FB[_at(R_TAU + _joint_of(a, DRV), i)] = DRV[2] * DRV[0] * DRV[8] * i_mean
+    ib = motor_bus_current(DRV[11], i_mean, DRV[8], ve, inv_vbus)
     AS[b, a, S_IBUS_MOTOR] = ib
     return rng, ib
 
@@ -550,8 +603,8 @@ def _controller_failed(b, a, err, mode, fw056, C, AI):
 
 
 @njit(cache=True, inline="always")
-def _axis_tick(k, b, a, i, q, rng, dt, C, AS, AI, FR, FB, DRV, TT, tt_period, turns_per_rad, inv_cpr, alpha,
-               inv_kt, inv_vbus):
+def _axis_tick(k, b, a, i, q, w_joint, rng, dt, C, AS, AI, FR, FB, DRV, TT, tt_period, turns_per_rad, inv_cpr,
+               inv_kt, inv_vbus, cc_kp, cc_ki_dt, vmax, a_half, inv_r, m_half):
     """One control tick of axis ``a`` of leg ``b`` (main.cpp:429-461): the encoder, the
     controller (every tick in every state on 0.5.6; in closed loop on 0.5.1), then the
     motor: armed by the controller, by a calibration, or IDLE. (rng, bus current, abort
@@ -561,6 +614,7 @@ def _axis_tick(k, b, a, i, q, rng, dt, C, AS, AI, FR, FB, DRV, TT, tt_period, tu
     fw056 = C[b, 0, C_FW_056] > 0.0
     AI[b, a, I_TQ_PRESENT] = 0
     torque = 0.0
+    iq_sp_idle = 0.0
     if fw056 or (mode != MODE_IDLE and mode != MODE_CALIB):
         err, torque = _controller_update(k, b, a, dt, C, AS, AI, TT, tt_period, fw056)
         if err != 0:
@@ -569,14 +623,25 @@ def _axis_tick(k, b, a, i, q, rng, dt, C, AS, AI, FR, FB, DRV, TT, tt_period, tu
             AS[b, a, S_TQ_OUT] = torque
             AI[b, a, I_TQ_PRESENT] = 1
             mode = AI[b, a, I_MODE]      # a trajectory's end may have switched it
+            if AI[b, a, I_CONNECTED] != 0:
+                iq_sp_idle = current_setpoint(torque, inv_kt, py_min(C[b, a, C_CURRENT_LIM], C[b, a, C_MAX_CURRENT]))
+    code = ABORT_NONE
+    ib = 0.0
     if mode == MODE_CALIB:
         rng, ib = _calibration_tick(b, a, i, turns, rng, dt, C, AS, FB, DRV, inv_vbus)
-        return rng, ib, ABORT_NONE
-    if mode == MODE_IDLE:
-        _disarmed(b, a, i, AS, AI, FB, DRV)
-        return rng, 0.0, ABORT_NONE
-    code = _step_abort(b, a, mode, pe, C, AS)
-    rng, ib = _motor_tick(b, a, i, torque, ve, rng, C, AS, AI, FB, DRV, alpha, inv_kt, inv_vbus)
+    elif mode == MODE_IDLE:
+        _disarmed(b, a, i, AS, AI, FB, DRV, iq_sp_idle, fw056)
+    else:
+        code = _step_abort(b, a, mode, pe, C, AS)
+        rng, ib = _motor_tick(b, a, i, torque, ve, w_joint, rng, C, AS, AI, FB, DRV, inv_kt, inv_vbus, cc_kp,
+                              cc_ki_dt, vmax, a_half, inv_r, m_half)
+    # motor.cpp:726-730 (0.5.2+): the motor's bus current outside its hard limits, in every state
+    if not (C[b, a, C_IBUS_MIN] <= ib <= C[b, a, C_IBUS_MAX]):
+        AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_I_BUS_OUT_OF_RANGE
+        AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
+        if AI[b, a, I_MODE] != MODE_IDLE:
+            _disarmed(b, a, i, AS, AI, FB, DRV, AS[b, a, S_IQ_SP], False)
+            ib = 0.0
     return rng, ib, code
 
 
@@ -606,6 +671,7 @@ def _bus_tick(b, i, ibus_axes, C, AS, AI, FB, inv_vbus, inv_brake_r):
         AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
         AI[b, a, I_MODE] = MODE_IDLE
         AS[b, a, S_IQ] = 0.0
+        AS[b, a, S_V_PREV] = 0.0
     if not old_style:
         AI[b, 0, I_SYS_ERR] |= (ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT if over_neg
                                 else ODRIVE_ERROR_DC_BUS_OVER_CURRENT)
@@ -620,6 +686,7 @@ def _abort_step(k, b, i, code, AS, AI, FB, ABORT):
     for a in range(2):
         AI[b, a, I_MODE] = MODE_IDLE
         AS[b, a, S_IQ] = 0.0
+        AS[b, a, S_V_PREV] = 0.0
     FB[_at(R_TAU + 0, i)] = 0.0
     FB[_at(R_TAU + 1, i)] = 0.0
     if ABORT[b, 1] == ABORT_NONE:
@@ -640,7 +707,9 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
     turns_per_rad = DRV[0] / TWO_PI
     # per-call invariants by leg (the host changes C only between calls): the current
     # loop's discrete pole, and reciprocals (a division in the tick loop is costly)
-    ALPHA, INV_KT, INV_CPR = np.empty((nb, 2)), np.empty((nb, 2)), np.empty((nb, 2))
+    CC_KP, CC_KI_DT, INV_KT, INV_CPR = np.empty((nb, 2)), np.empty((nb, 2)), np.empty((nb, 2)), np.empty((nb, 2))
+    VMAX = np.empty(nb)
+    a_half, inv_r, m_half = motor_plant(DRV, dt)
     INV_VBUS, INV_BRAKE_R = np.empty(nb), np.empty(nb)
     INV_VS, INV_VSM = np.empty(nb), np.empty(nb)
     # the legs' joints, time, torques, dead and non-finite flags in the block's rows
@@ -652,10 +721,12 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
     for i in range(nb):
         b = b0 + i
         for a in range(2):
-            ALPHA[i, a] = 1.0 - math.exp(-C[b, a, C_CURRENT_BW] * dt)
+            CC_KP[i, a], CC_KI_DT[i, a] = current_gains(C[b, a, C_CURRENT_BW], C[b, a, C_PHASE_R],
+                                                        C[b, a, C_PHASE_L], dt)
             INV_KT[i, a] = 1.0 / C[b, a, C_KT]
             INV_CPR[i, a] = 1.0 / C[b, a, C_CPR]
         INV_VBUS[i], INV_BRAKE_R[i] = 1.0 / C[b, 0, C_VBUS], 1.0 / C[b, 0, C_BRAKE_R]
+        VMAX[i] = V_MAX_PER_VBUS * C[b, 0, C_VBUS]
         INV_VS[i], INV_VSM[i] = 1.0 / FR[b, 6], 1.0 / FR[b, 7]
         for n in range(5):
             FB[_at(R_Q + n, i)] = X[b, n]
@@ -687,10 +758,13 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
             for a in range(2):
                 j = _joint_of(a, DRV)
                 q = FB[_at(R_Q + 2 * j, i)] if plain else X[b, 2 * j]
+                w = FB[_at(R_Q + 2 * j + 1, i)] if plain else X[b, 2 * j + 1]
                 if FR[b, F_BELT_K] > 0.0:       # compliant belt: the encoder is on the rotor
                     q = X[b, X_PHI1 + 2 * j]
-                rng, ib, code = _axis_tick(k, b, a, i, q, rng, dt, C, AS, AI, FR, FB, DRV, TT, tt_period,
-                                           turns_per_rad, INV_CPR[i, a], ALPHA[i, a], INV_KT[i, a], INV_VBUS[i])
+                    w = X[b, X_PHI1 + 2 * j + 1]
+                rng, ib, code = _axis_tick(k, b, a, i, q, w, rng, dt, C, AS, AI, FR, FB, DRV, TT, tt_period,
+                                           turns_per_rad, INV_CPR[i, a], INV_KT[i, a], INV_VBUS[i], CC_KP[i, a],
+                                           CC_KI_DT[i, a], VMAX[i], a_half, inv_r, m_half)
                 ibus_axes += ib
                 if code != ABORT_NONE:
                     abort_code = code

@@ -52,7 +52,11 @@ INPUT_MODE_TUNING = 8      # 0.5.6 (not in fw-v0.5.1)
 # setpoint clamps of controller.cpp:285-290), 0 for 0.5.1 (the controller runs only in
 # closed loop, fw-v0.5.1 axis.cpp:344-355)
 C_FW_056 = 62
-N_CFG = 63
+# the current controller's settings per axis: the configured phase resistance and
+# inductance its gains come from (motor.cpp:297-302), its feed-forwards (motor.cpp:567-586),
+# the motor's bus-current trip (motor.cpp:728-730)
+(C_PHASE_R, C_PHASE_L, C_BEMF_FF, C_RWL_FF, C_IBUS_MIN, C_IBUS_MAX) = range(63, 69)
+N_CFG = 69
 # float state per axis: AS[b, axis, k]
 S_POS_EST, S_VEL_EST, S_INTEGRATOR, S_IQ, S_WD_TIMER, S_IQ_MEAS = range(6)
 S_OSC = 6           # N_OSC slots of the oscillation monitor (see oscillation_update)
@@ -63,7 +67,10 @@ S_IBUS, S_BRAKE_I = S_COUNT_F + 8, S_COUNT_F + 9
 # the controller's further state: the tuning sine's phase (autotuning_phase), the
 # encoder's circular position (pos_circular) and the controller's torque output [N*m]
 S_TUNE_PHASE, S_POS_CIRC, S_TQ_OUT = S_COUNT_F + 10, S_COUNT_F + 11, S_COUNT_F + 12
-N_AXSTATE = S_COUNT_F + 13
+# the current loop: Iq's setpoint [A], the q voltage of the previous tick (still applied for
+# half a period) and the PI's integrator (v_current_control_integral_q) [V]
+S_IQ_SP, S_V_PREV, S_V_INT = S_COUNT_F + 13, S_COUNT_F + 14, S_COUNT_F + 15
+N_AXSTATE = S_COUNT_F + 16
 # int state per axis: AI[b, axis, k]; I_SYS_ERR is the board's error (odrv.error), on axis 0
 I_MODE, I_AXIS_ERR, I_CTRL_ERR, I_MOTOR_ERR, I_COUNTS, I_TRAJ_DONE, I_SYS_ERR = range(7)
 # 1 once the controller's estimate inputs are connected to the encoder (the first
@@ -84,6 +91,10 @@ CONTROLLER_ERROR_INVALID_MIRROR_AXIS = 0x8
 CONTROLLER_ERROR_INVALID_ESTIMATE = 0x20
 MOTOR_ERROR_UNKNOWN_TORQUE = 0x10000000             # 0.5.6: motor.update without a torque
 MOTOR_ERROR_UNKNOWN_VOLTAGE_COMMAND = 0x100000000   # 0.5.6: the FOC without a voltage command
+MOTOR_ERROR_I_BUS_OUT_OF_RANGE = 0x400000           # 0.5.2+: motor.cpp:728-730
+MOTOR_ERROR_MODULATION_IS_NAN = 0x10000             # foc.cpp:31-32
+# foc.cpp:144: the modulation's magnitude is held to 0.8 sqrt(3)/2, of 2/3 vbus in volts
+V_MAX_PER_VBUS = 0.8 * (3.0 ** 0.5 / 2.0) * (2.0 / 3.0)
 MOTOR_ERROR_CURRENT_LIMIT_VIOLATION = 0x1000
 MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT = 0x4000      # 0.5.1: the bus faults land on the motors
 MOTOR_ERROR_DC_BUS_OVER_CURRENT = 0x8000
@@ -129,12 +140,13 @@ LANES = 2 * VECTOR_LEGS   # the most legs in a block
 # its state (V_) and configuration (K_), and the board's (G_)
 R_Q = 0                   # q1, dq1, q2, dq2, t (the X_ order)
 R_TAU = 5                 # joint 0, joint 1 [N*m] on the joint side
-(V_PE, V_VE, V_INT, V_IQ, V_IQM, V_CNTF, V_PSP, V_VSP, V_TSP, V_IBM, V_TQOUT) = range(11)
-V_OSC = 11
+(V_PE, V_VE, V_INT, V_IQ, V_IQM, V_CNTF, V_PSP, V_VSP, V_TSP, V_IBM, V_TQOUT, V_IQSP, V_VPREV,
+ V_VINT) = range(14)
+V_OSC = 14
 N_V = V_OSC + N_OSC
 (K_OFF, K_KP, K_KI, K_VL, K_VTOL, K_IPOS, K_IVEL, K_ITQ, K_KT, K_VG, K_CLIM, K_AE, K_PG, K_VIG,
- K_VIL, K_ALPHA, K_INVKT, K_TLIM, K_MAXI, K_MARGIN, K_INVCPR) = range(21)
-N_K = 21
+ K_VIL, K_CCKP, K_INVKT, K_TLIM, K_MAXI, K_MARGIN, K_INVCPR, K_CCKI, K_VMAX) = range(23)
+N_K = 23
 # the configuration rows copied as they are: (K_ row, C_ slot)
 K_FROM_C = ((K_OFF, C_COUNT_OFFSET), (K_VL, C_VEL_LIMIT), (K_VTOL, C_VEL_TOL), (K_IPOS, C_INPUT_POS),
             (K_IVEL, C_INPUT_VEL), (K_ITQ, C_INPUT_TORQUE), (K_KT, C_KT), (K_VG, C_VEL_GAIN),

@@ -8,8 +8,10 @@ file whose code it follows (fw-v0.5.6 unless marked):
 - ``controller.cpp``: :func:`overspeed`, :func:`torque_command`, :func:`torque_limit`, :func:`integrator_step`
   (the velocity integrator's anti-windup), :func:`clamp` (``std::clamp``);
 - ``utils.hpp``: :func:`wrap_pm`, :func:`fmodf_pos` (the circular setpoints' arithmetic);
-- ``motor.cpp``: :func:`max_torque` (max_available_torque), :func:`current_loop` (the current
-  controller as a first-order lag), :func:`current_violation`, :func:`motor_bus_current`;
+- ``motor.cpp``, ``foc.cpp``: :func:`max_torque` (max_available_torque), :func:`current_setpoint`,
+  :func:`foc_voltage` (the current PI with its voltage limit), :func:`motor_current` (the
+  motor's phase current under that voltage, applied half a period late),
+  :func:`current_violation`, :func:`motor_bus_current`;
 - ``low_level.cpp``: :func:`brake_current`, :func:`bus_fault`.
 
 The reference tick (:func:`leglib.twin.kernel._run_block`) and the vectorized one
@@ -127,10 +129,63 @@ def max_torque(current_lim, max_current, kt, torque_lim):
     return clamp(ilim * kt, 0.0, torque_lim)
 
 @njit(cache=True, inline="always")
-def current_loop(iq0, alpha, torque, inv_kt):
-    """The current controller reaching its setpoint torque / torque_constant as a first-order
-    lag at current_control_bandwidth (``alpha`` = 1 - exp(-bw dt)) [A]."""
-    return iq0 + alpha * (torque * inv_kt - iq0)
+def current_gains(bandwidth, r, ind, dt):
+    """motor.cpp:297-302: the current PI's gains from current_control_bandwidth [rad/s]
+    and the configured phase resistance [ohm] and inductance [H]: (p_gain [V/A], i_gain *
+    dt [V/A]; i_gain = p_gain * R / L)."""
+    p_gain = bandwidth * ind
+    if not ind != 0.0:     # an uncalibrated motor (L = 0): the firmware's R / L is inf or NaN
+        return p_gain, math.nan
+    return p_gain, (r / ind) * p_gain * dt
+
+
+@njit(cache=True, inline="always")
+def motor_plant(DRV, dt):
+    """The motor's electrical invariants for :func:`motor_current` from its true phase
+    resistance DRV[11] [ohm] and inductance DRV[12] [H] over half a control period:
+    (exp(-R dt / 2L), 1 / R, the half's mean of the exponential)."""
+    x = DRV[11] * dt / (2.0 * DRV[12])
+    a_half = math.exp(-x)
+    return a_half, 1.0 / DRV[11], (1.0 - a_half) / x
+
+
+@njit(cache=True, inline="always")
+def current_setpoint(torque, inv_kt, ilim):
+    """motor.cpp:538-548: the torque's current (torque / torque_constant) clamped to the
+    effective current limit (the 2-norm clamp with Id = 0) [A]."""
+    return clamp(torque * inv_kt, -ilim, ilim)
+
+
+@njit(cache=True, inline="always")
+def foc_voltage(iq_sp, iq_meas, integ, kp, ki_dt, v_ff, vmax):
+    """foc.cpp:131-154: the q-axis voltage of the current PI (p_gain = bandwidth * L,
+    i_gain = bandwidth * R from the configured R and L, motor.cpp:297-302) on the measured
+    current, with the feed-forward ``v_ff``; the modulation's magnitude limited to 0.8 of
+    sqrt(3)/2 (``vmax`` = 0.8 sqrt(3)/2 * 2/3 vbus [V]), the integrator decaying by 0.99 per
+    tick while limited. (voltage [V], integrator [V])."""
+    err = iq_sp - iq_meas
+    v = v_ff + integ + err * kp
+    limited = abs(v) > vmax
+    v = select(limited, select(v > 0.0, vmax, -vmax), v)
+    return v, select(limited, integ * 0.99, integ + err * ki_dt)
+
+
+@njit(cache=True, inline="always")
+def motor_current(i0, v_prev, v, e_bemf, a_half, inv_r, m_half):
+    """The phase current's response over one control period [A]: the RL circuit
+    (L di/dt = v - R i - e) driven during the period's first half by the voltage of the
+    previous tick and during its second by this tick's: the PWM timings the control
+    interrupt writes take effect at the next timer update, half a control period after the
+    current was sampled (board.cpp:543-563, foc.cpp:163). ``a_half`` = exp(-R dt / 2L),
+    ``inv_r`` = 1 / R, ``m_half`` = (1 - a_half) 2L / (R dt) (a half's mean of the
+    exponential). (the current at the next sample, its mean over the period)."""
+    s1 = (v_prev - e_bemf) * inv_r
+    i1 = s1 + (i0 - s1) * a_half
+    mean1 = s1 + (i0 - s1) * m_half
+    s2 = (v - e_bemf) * inv_r
+    i2 = s2 + (i1 - s2) * a_half
+    mean2 = s2 + (i1 - s2) * m_half
+    return i2, 0.5 * (mean1 + mean2)
 
 
 @njit(cache=True, inline="always")

@@ -23,10 +23,11 @@ from ..abort import (
     ABORT_POSITION_ERROR,
     _oscillation_step,
 )
-from ..kernelmath import select
+from ..kernelmath import py_min, select
 from .layout import (
     AXIS_ERROR_CONTROLLER_FAILED,
     AXIS_ERROR_MOTOR_FAILED,
+    C_BEMF_FF,
     C_BRAKE_ON,
     C_BRAKE_R,
     C_CIRCULAR,
@@ -40,10 +41,15 @@ from .layout import (
     C_EN_VEL_LIMIT,
     C_ENCODER_BW,
     C_FW_056,
+    C_IBUS_MAX,
+    C_IBUS_MIN,
     C_INPUT_MODE,
     C_KT,
     C_MAX_REGEN,
+    C_PHASE_L,
+    C_PHASE_R,
     C_REGEN_ERR_STYLE,
+    C_RWL_FF,
     C_VBUS,
     C_WD_ENABLE,
     CONTROL_MODE_POSITION,
@@ -72,7 +78,8 @@ from .layout import (
     I_TQ_PRESENT,
     INPUT_MODE_PASSTHROUGH,
     K_AE,
-    K_ALPHA,
+    K_CCKI,
+    K_CCKP,
     K_CLIM,
     K_FROM_C,
     K_INVCPR,
@@ -92,6 +99,7 @@ from .layout import (
     K_VIG,
     K_VIL,
     K_VL,
+    K_VMAX,
     K_VTOL,
     LANES,
     MODE_IDLE,
@@ -134,11 +142,14 @@ from .layout import (
     S_INTEGRATOR,
     S_IQ,
     S_IQ_MEAS,
+    S_IQ_SP,
     S_OSC,
     S_POS_EST,
     S_POS_SP,
     S_TQ_OUT,
     S_TQ_SP,
+    S_V_INT,
+    S_V_PREV,
     S_VEL_EST,
     S_VEL_SP,
     V_CNTF,
@@ -146,12 +157,16 @@ from .layout import (
     V_INT,
     V_IQ,
     V_IQM,
+    V_IQSP,
+    V_MAX_PER_VBUS,
     V_OSC,
     V_PE,
     V_PSP,
     V_TQOUT,
     V_TSP,
     V_VE,
+    V_VINT,
+    V_VPREV,
     V_VSP,
     W_AXERR,
     W_COUNTS,
@@ -167,13 +182,17 @@ from .stages import (
     brake_current,
     bus_fault,
     clamp,
-    current_loop,
+    current_gains,
+    current_setpoint,
     current_violation,
     encoder_counts,
     encoder_pll,
+    foc_voltage,
     integrator_step,
     max_torque,
     motor_bus_current,
+    motor_current,
+    motor_plant,
     overspeed,
     torque_command,
     torque_limit,
@@ -186,7 +205,8 @@ def _vector_block(b0, b1, FR, C, AI):
     :func:`_run_block_vector`: no encoder reading error, and every axis in position control
     (configured, and armed or IDLE) with its inputs passed through, no watchdog, and the
     controller's optional features at their defaults (velocity limit and overspeed check
-    on, no gain scheduling, no circular setpoints)."""
+    on, no gain scheduling, no circular setpoints), a calibrated current controller without
+    feed-forwards or bus-current limits."""
     for b in range(b0, b1):
         if FR[b, F_ENC_ON] > 0.0:
             return False
@@ -200,12 +220,17 @@ def _vector_block(b0, b1, FR, C, AI):
                 return False
             if not (C[b, a, C_EN_VEL_LIMIT] > 0.0 and C[b, a, C_EN_OVERSPEED] > 0.0) or C[b, a, C_EN_GAIN_SCHED] > 0.0:
                 return False
+            # a calibrated current controller without feed-forwards or bus-current trips
+            if not C[b, a, C_PHASE_L] > 0.0 or C[b, a, C_BEMF_FF] > 0.0 or C[b, a, C_RWL_FF] > 0.0:
+                return False
+            if C[b, a, C_IBUS_MIN] != -np.inf or C[b, a, C_IBUS_MAX] != np.inf:
+                return False
     return True
 
 
 @njit(cache=True, inline="always")
-def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, cpr, enc_noise,
-                 cur_noise, quantize, N, kt_true, r_phase, inv_vbus, fw056):
+def _axis_vector(i, a, FB, IB, q, w_joint, q_rest, rng, alive, dt, dirn, turns_per_rad, cpr, enc_noise,
+                 cur_noise, quantize, N, kt_true, r_phase, inv_vbus, fw056, a_half, inv_r, m_half):
     """One tick of axis ``a`` (a constant) of leg ``i`` of a vectorized block, its joint at
     ``q``: what the per-leg tick of :func:`_run_block` does for an axis in position
     control, armed or IDLE, with passthrough inputs, the same operations in the same order,
@@ -267,17 +292,25 @@ def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, c
     n0, n1, n2, n3, n4, n5, unstable = _oscillation_step(o0, o1, o2, o3, o4, o5, err, 0.025 * abort_error)
     growing = osc_on & unstable
     code_a = select(too_far, ABORT_POSITION_ERROR, select(growing, ABORT_OSCILLATION, ABORT_NONE))
-    # the motor
+    # the motor: current setpoint, the sampled current and its trip, the current PI and the
+    # phase current it drives (kernel._motor_tick)
+    ilim = py_min(current_lim, max_i)
+    iq_sp = current_setpoint(torque, FB[_at(rk + K_INVKT, i)], ilim)
     iq0 = FB[_at(rv + V_IQ, i)]
-    iq = current_loop(iq0, FB[_at(rk + K_ALPHA, i)], torque, FB[_at(rk + K_INVKT, i)])
     rng2, nz = _normal(rng1)
-    iq_meas = iq + cur_noise * nz
+    iq_meas = iq0 + cur_noise * nz
     violated = active & current_violation(iq_meas, current_lim, max_i, FB[_at(rk + K_MARGIN, i)])
     motor_err = motor_err | select(violated, MOTOR_ERROR_CURRENT_LIMIT_VIOLATION, 0)
     axis_err = axis_err | select(violated, AXIS_ERROR_MOTOR_FAILED, 0)
-    iq = select(violated, 0.0, iq)
-    tau = dirn * N * kt_true * iq
-    ib = motor_bus_current(r_phase, iq, kt_true, ve, inv_vbus)
+    vint0 = FB[_at(rv + V_VINT, i)]
+    v, vint = foc_voltage(iq_sp, iq_meas, vint0, FB[_at(rk + K_CCKP, i)], FB[_at(rk + K_CCKI, i)], 0.0,
+                          FB[_at(rk + K_VMAX, i)])
+    e_bemf = (2.0 / 3.0) * kt_true * (dirn * N * w_joint)
+    vprev0 = FB[_at(rv + V_VPREV, i)]
+    i_next, i_mean = motor_current(iq0, vprev0, v, e_bemf, a_half, inv_r, m_half)
+    flows = active & (not violated)
+    tau = dirn * N * kt_true * i_mean
+    ib = motor_bus_current(r_phase, i_mean, kt_true, ve, inv_vbus)
     # write back: a dead leg keeps everything; an IDLE axis zeroes its outputs (the old
     # values loaded first: a select between two loaded values vectorizes, a load
     # under a condition does not)
@@ -285,6 +318,7 @@ def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, c
     counts_i0 = IB[_at(rw + W_COUNTS, i)]
     iqm0 = FB[_at(rv + V_IQM, i)]
     ibm0 = FB[_at(rv + V_IBM, i)]
+    iqsp0 = FB[_at(rv + V_IQSP, i)]
     psp0, vsp0, tsp0 = FB[_at(rv + V_PSP, i)], FB[_at(rv + V_VSP, i)], FB[_at(rv + V_TSP, i)]
     tqo0 = FB[_at(rv + V_TQOUT, i)]
     ctrl_err0 = IB[_at(rw + W_CTRLERR, i)]
@@ -302,9 +336,14 @@ def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, c
     FB[_at(rv + V_INT, i)] = select(done, integ, integ0)
     FB[_at(rv + V_TQOUT, i)] = select(done, torque, tqo0)
     IB[_at(rx + WX_TQP, i)] = select(done, 1, select(alive, 0, tqp0))
-    FB[_at(rv + V_IQ, i)] = select(run, iq, select(idle, 0.0, iq0))
+    flowing = alive & flows
+    iqsp_idle = select(done & connected, iq_sp, 0.0)
+    FB[_at(rv + V_IQ, i)] = select(flowing, i_next, select(run | idle, 0.0, iq0))
+    FB[_at(rv + V_VPREV, i)] = select(flowing, v, select(run | idle, 0.0, vprev0))
+    FB[_at(rv + V_VINT, i)] = select(flowing, vint, vint0)
+    FB[_at(rv + V_IQSP, i)] = select(run, iq_sp, select(idle & fw056, iqsp_idle, iqsp0))
     FB[_at(rv + V_IQM, i)] = select(run, iq_meas, select(idle, 0.0, iqm0))
-    FB[_at(rv + V_IBM, i)] = select(run, ib, select(idle, 0.0, ibm0))
+    FB[_at(rv + V_IBM, i)] = select(flowing, ib, select(run | idle, 0.0, ibm0))
     FB[_at(rv + V_PSP, i)] = select(updated, pos_sp, psp0)
     FB[_at(rv + V_VSP, i)] = select(updated, vel_sp, vsp0)
     FB[_at(rv + V_TSP, i)] = select(updated, tq_sp, tsp0)
@@ -321,7 +360,7 @@ def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, c
     IB[_at(rw + W_CTRLERR, i)] = select(alive, ctrl_err, ctrl_err0)
     IB[_at(rw + W_MOTERR, i)] = select(alive, motor_err, motor_err0)
     rng_out = select(run, rng2, select(alive, rng1, rng))
-    return rng_out, select(run, tau, 0.0), select(run, ib, 0.0), select(run, code_a, ABORT_NONE)
+    return rng_out, select(flowing, tau, 0.0), select(flowing, ib, 0.0), select(run, code_a, ABORT_NONE)
 
 
 @njit(cache=True, inline="always")
@@ -330,11 +369,12 @@ def _stop_axis(i, a, FB, IB, fault, stop, motor_flag):
     bus fault's error flags, and for a fault or an abort (``stop``) IDLE, no current."""
     rv, rw = R_V0 + a * N_V, R_W0 + a * N_W
     motor_err0, axis_err0, mode0 = IB[_at(rw + W_MOTERR, i)], IB[_at(rw + W_AXERR, i)], IB[_at(rw + W_MODE, i)]
-    iq0 = FB[_at(rv + V_IQ, i)]
+    iq0, vprev0 = FB[_at(rv + V_IQ, i)], FB[_at(rv + V_VPREV, i)]
     IB[_at(rw + W_MOTERR, i)] = motor_err0 | select(fault, motor_flag, 0)
     IB[_at(rw + W_AXERR, i)] = axis_err0 | select(fault, AXIS_ERROR_MOTOR_FAILED, 0)
     IB[_at(rw + W_MODE, i)] = select(stop, MODE_IDLE, mode0)
     FB[_at(rv + V_IQ, i)] = select(stop, 0.0, iq0)
+    FB[_at(rv + V_VPREV, i)] = select(stop, 0.0, vprev0)
 
 
 @njit(cache=True, error_model="numpy")
@@ -350,6 +390,7 @@ def _control_vector(k, dt, FB, IB, nb, DRV):
     j_of_a0 = int(DRV[5])
     q_rest_joint0, q_rest_joint1 = DRV[3], DRV[4]
     turns_per_rad = N / (2.0 * math.pi)
+    a_half, inv_r, m_half = motor_plant(DRV, dt)
     for i in range(nb):
         alive = IB[_at(R_DEAD, i)] == 0
         inv_vbus = FB[_at(R_G + G_INV_VBUS, i)]
@@ -359,15 +400,16 @@ def _control_vector(k, dt, FB, IB, nb, DRV):
         # the joints' angles, read from fixed rows (a row chosen at run time would keep
         # the compiler from proving the accesses independent)
         q_joint0, q_joint1 = FB[_at(R_Q, i)], FB[_at(R_Q + 2, i)]
+        w_joint0, w_joint1 = FB[_at(R_Q + 1, i)], FB[_at(R_Q + 3, i)]
         axis0_on_joint0 = j_of_a0 == 0
         rng, tau_axis0, ib0, code0 = _axis_vector(
-            i, 0, FB, IB, select(axis0_on_joint0, q_joint0, q_joint1),
+            i, 0, FB, IB, select(axis0_on_joint0, q_joint0, q_joint1), select(axis0_on_joint0, w_joint0, w_joint1),
             select(axis0_on_joint0, q_rest_joint0, q_rest_joint1), rng, alive, dt, dirn, turns_per_rad, cpr,
-            enc_noise, cur_noise, quantize, N, kt_true, r_phase, inv_vbus, fw056)
+            enc_noise, cur_noise, quantize, N, kt_true, r_phase, inv_vbus, fw056, a_half, inv_r, m_half)
         rng, tau_axis1, ib1, code1 = _axis_vector(
-            i, 1, FB, IB, select(axis0_on_joint0, q_joint1, q_joint0),
+            i, 1, FB, IB, select(axis0_on_joint0, q_joint1, q_joint0), select(axis0_on_joint0, w_joint1, w_joint0),
             select(axis0_on_joint0, q_rest_joint1, q_rest_joint0), rng, alive, dt, dirn, turns_per_rad, cpr,
-            enc_noise, cur_noise, quantize, N, kt_true, r_phase, inv_vbus, fw056)
+            enc_noise, cur_noise, quantize, N, kt_true, r_phase, inv_vbus, fw056, a_half, inv_r, m_half)
         ibus_sum += ib0
         ibus_sum += ib1
         code = select(code1 != ABORT_NONE, code1, code0)
@@ -424,7 +466,8 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT,
     FB = np.zeros(N_FROWS * LANES)
     IB = np.zeros(N_IROWS * LANES, np.int64)
     f_slots = (S_POS_EST, S_VEL_EST, S_INTEGRATOR, S_IQ, S_IQ_MEAS, S_COUNT_F, S_POS_SP, S_VEL_SP, S_TQ_SP,
-               S_IBUS_MOTOR, S_TQ_OUT, S_OSC, S_OSC + 1, S_OSC + 2, S_OSC + 3, S_OSC + 4, S_OSC + 5)
+               S_IBUS_MOTOR, S_TQ_OUT, S_IQ_SP, S_V_PREV, S_V_INT, S_OSC, S_OSC + 1, S_OSC + 2, S_OSC + 3,
+               S_OSC + 4, S_OSC + 5)
     w_slots = (I_MODE, I_AXIS_ERR, I_CTRL_ERR, I_MOTOR_ERR, I_COUNTS)
     wx_slots = (I_CONNECTED, I_TQ_PRESENT)
     for i in range(nb):
@@ -448,7 +491,10 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT,
             kp = 2.0 * C[b, a, C_ENCODER_BW]
             FB[_at(rk + K_KP, i)] = kp
             FB[_at(rk + K_KI, i)] = 0.25 * kp * kp
-            FB[_at(rk + K_ALPHA, i)] = 1.0 - math.exp(-C[b, a, C_CURRENT_BW] * dt)
+            kp_cc, ki_cc = current_gains(C[b, a, C_CURRENT_BW], C[b, a, C_PHASE_R], C[b, a, C_PHASE_L], dt)
+            FB[_at(rk + K_CCKP, i)] = kp_cc
+            FB[_at(rk + K_CCKI, i)] = ki_cc
+            FB[_at(rk + K_VMAX, i)] = V_MAX_PER_VBUS * C[b, 0, C_VBUS]
             FB[_at(rk + K_INVKT, i)] = 1.0 / C[b, a, C_KT]
             FB[_at(rk + K_INVCPR, i)] = 1.0 / C[b, a, C_CPR]
         FB[_at(R_G + G_BRAKE_ON, i)] = C[b, 0, C_BRAKE_ON]

@@ -166,7 +166,7 @@ ENDPOINTS = (
     Endpoint("axis*.motor.is_calibrated", Key("motor_calibrated", writable=False), bool),
     Endpoint("axis*.motor.is_armed", Get("_is_armed"), bool, since="0.5.2"),   # 0.5.1: armed_state
     Endpoint("axis*.motor.current_control.Iq_measured", S(L.S_IQ_MEAS)),
-    Endpoint("axis*.motor.current_control.Iq_setpoint", S(L.S_IQ)),
+    Endpoint("axis*.motor.current_control.Iq_setpoint", S(L.S_IQ_SP)),
     Endpoint("axis*.motor.config.pole_pairs", Key("pole_pairs"), int, check=positive),
     Endpoint("axis*.motor.config.torque_constant", C(L.C_KT), check=positive),
     Endpoint("axis*.motor.config.motor_type", Key("motor_type"), int, setter="_set_motor_type"),
@@ -335,6 +335,8 @@ class VirtualODrive:
         C[0, 0, L.C_VBUS] = 24.0
         C[0, 0, L.C_REGEN_ERR_STYLE] = 0.0 if v056 else 1.0
         controller_defaults(C[0], cpr=8192)                 # controller.hpp:25-56, encoder.hpp:27
+        C[0, :, L.C_PHASE_R] = 0.0                          # motor.hpp:22-23: not measured yet
+        C[0, :, L.C_PHASE_L] = 0.0
         C[0, 0, L.C_FW_056] = 1.0 if v056 else 0.0
         self._board = {"enable_brake_resistor": not v056}
         self._axis = []
@@ -680,6 +682,10 @@ class VirtualODrive:
             st.C[0, a, L.C_CAL_CURRENT] = ax.pop("saved_cal_current")
             self._disarm(a)
             ax["motor_calibrated"] = True              # motor.cpp:509
+            # motor.cpp:416-507: the measured R and L, from which the current controller's
+            # gains follow (motor.cpp:297-302, 507)
+            st.C[0, a, L.C_PHASE_R] = self.twin.motor.phase_resistance
+            st.C[0, a, L.C_PHASE_L] = self.twin.motor.phase_inductance
             ax["phase"], ax["phase_end"] = None, None
             self._next_task(a)
         elif phase == "lock":
@@ -718,7 +724,9 @@ class VirtualODrive:
         # the controller's inputs connected to this axis's encoder (axis.cpp:270-285; the
         # controller reads its own axis's encoder: load_encoder_axis)
         st.AI[0, a, L.I_CONNECTED] = 1
-        # controller reset at arming (motor.cpp:202, controller.cpp:12-18)
+        # controller and current controller reset at arming (motor.cpp:202-206,
+        # controller.cpp:12-18, foc.cpp:47-53)
+        st.AS[0, a, [L.S_IQ, L.S_V_PREV, L.S_V_INT]] = 0.0
         st.AS[0, a, L.S_VEL_SP] = 0.0
         st.AS[0, a, L.S_TQ_SP] = 0.0
         st.AS[0, a, L.S_INTEGRATOR] = 0.0
@@ -985,7 +993,7 @@ class VirtualODrive:
 
     def _phase_resistance(self, a: int) -> float:
         # the calibration's measurement (motor.cpp:416-423); 0 until the motor is calibrated
-        return self.twin.motor.phase_resistance if self._axis[a]["motor_calibrated"] else 0.0
+        return float(self.st.C[0, a, L.C_PHASE_R])
 
     def _uptime_ms(self) -> int:
         """system_stats.uptime: the FreeRTOS tick count (1 ms) since this boot, uint32."""
