@@ -106,9 +106,15 @@ def integrator_step(integrator, limited, gain, dt, verr, lim):
 
 @njit(cache=True, inline="always")
 def wrap_pm(x, y):
-    """utils.hpp:123-130: ``x`` wrapped into [-y/2, y/2] (x minus the nearest multiple of
-    ``y``, ties to even as the FPU's round-to-nearest)."""
-    return x - np.rint(x / y) * y
+    """utils.hpp:108-130: ``x`` wrapped into [-y/2, y/2]: x minus the nearest multiple of
+    ``y``, the multiple's count rounded by the Cortex-M4's vcvtr.s32.f32 (to nearest, ties
+    to even; saturating at the int32 range, NaN to 0), so that ``y`` = 0 leaves ``x`` as it
+    is, as on the board (no division by zero here: the count is formed with selects)."""
+    q = x / select(y == 0.0, 1.0, y)
+    q = select(y == 0.0, select(x > 0.0, 2147483647.0, select(x < 0.0, -2147483648.0, 0.0)), q)
+    q = select(q == q, q, 0.0)
+    n = np.rint(select(q > 2147483647.0, 2147483647.0, select(q < -2147483648.0, -2147483648.0, q)))
+    return x - n * y
 
 
 @njit(cache=True, inline="always")

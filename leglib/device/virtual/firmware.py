@@ -55,6 +55,7 @@ from ...errors import DeviceLostError
 from ...params import OdriveConfig, PlantParams
 from ...twin import layout as L
 from ...twin.host import Twin, controller_defaults, max_measurable_current
+from ...twin.stages import fmodf_pos
 from .tree import Attr, Board, C, Call, Const, Endpoint, Err, Get, I, Key, S, _Node, build_tree, positive
 
 FIRMWARES = ("0.5.1", "0.5.6")
@@ -252,7 +253,13 @@ ENDPOINTS = (
     Endpoint("axis*.motor.config.current_lim_margin", C(L.C_CURRENT_LIM_MARGIN)),
     Endpoint("axis*.motor.config.requested_current_range", Key("requested_current_range"),
              setter="_set_requested_current_range"),
+    Endpoint("axis*.motor.config.bEMF_FF_enable", C(L.C_BEMF_FF), bool, since="0.5.2"),
+    Endpoint("axis*.motor.config.R_wL_FF_enable", C(L.C_RWL_FF), bool, since="0.5.2"),
+    Endpoint("axis*.motor.config.I_bus_hard_min", C(L.C_IBUS_MIN), since="0.5.2"),
+    Endpoint("axis*.motor.config.I_bus_hard_max", C(L.C_IBUS_MAX), since="0.5.2"),
+    Endpoint("axis*.motor.current_control.v_current_control_integral_q", S(L.S_V_INT, writable=True)),
     Endpoint("axis*.encoder.set_linear_count", Call("_set_linear_count")),                 # encoder.cpp:141-154
+    Endpoint("axis*.encoder.pos_circular", Get("_pos_circular")),                          # encoder.cpp:806-809
 )
 
 
@@ -869,17 +876,16 @@ class VirtualODrive:
         """encoder.pos_circular (encoder.cpp:806-809): the position wrapped into
         [0, circular_setpoint_range), kept by the kernel as an offset to pos_estimate."""
         st = self.st
-        rng = float(st.C[0, a, L.C_CIRC_RANGE])
         x = float(st.AS[0, a, L.S_POS_EST]) + float(st.AS[0, a, L.S_POS_CIRC])
-        r = x - float(np.rint(x / rng)) * rng
-        return r + rng if r < 0.0 else r
+        return float(fmodf_pos(x, float(st.C[0, a, L.C_CIRC_RANGE])))
 
     def _set_circular_setpoint_range(self, a: int, value: float):
-        if not value > 0.0 or not math.isfinite(value):
-            # fmodf_pos(x, 0) is NaN (utils.hpp:123-137): every setpoint and pos_circular
-            # would turn NaN on the board; refused here (stricter)
-            raise ValueError(f"odrv.axis{a}.controller.config.circular_setpoint_range must be a positive finite "
-                             f"number of turns, got {value} (the firmware's wrap divides by it: utils.hpp:123-137)")
+        if not math.isfinite(value):
+            # wrap_pm(x, inf) is x - 0 * inf, NaN (utils.hpp:123-130): every setpoint and
+            # pos_circular would turn NaN on the board; refused here (stricter). Zero and
+            # negative ranges the firmware wraps by as written: the kernel does too
+            raise ValueError(f"odrv.axis{a}.controller.config.circular_setpoint_range must be a finite number of "
+                             f"turns, got {value} (the firmware's wrap multiplies by it: utils.hpp:123-130)")
         st = self.st
         pc = self._pos_circular(a)    # pos_circular of the old range, then wrapped into the new one
         st.C[0, a, L.C_CIRC_RANGE] = value
