@@ -45,6 +45,7 @@ from .layout import (
     C_CURRENT_LIM_MARGIN,
     C_DC_MAX_NEG,
     C_DC_MAX_POS,
+    C_ELEC_BW,
     C_EN_GAIN_SCHED,
     C_EN_OVERSPEED,
     C_EN_TQ_VEL_LIMIT,
@@ -64,12 +65,15 @@ from .layout import (
     C_KT,
     C_MAX_CURRENT,
     C_MAX_REGEN,
+    C_MECH_BW,
     C_MIRROR_AXIS,
     C_MIRROR_RATIO,
     C_PHASE_L,
     C_PHASE_R,
     C_POS_GAIN,
     C_RWL_FF,
+    C_SPIN_ELEC,
+    C_SPIN_MECH,
     C_TORQUE_LIM,
     C_TORQUE_MIRROR_RATIO,
     C_TORQUE_RAMP_RATE,
@@ -118,8 +122,11 @@ from .layout import (
     N_FR,
     N_OSC,
     N_X,
+    S_ELEC_P,
+    S_FOC_POWER,
     S_INTEGRATOR,
     S_IQ,
+    S_MECH_P,
     S_OSC,
     S_POS_EST,
     S_V_INT,
@@ -221,6 +228,10 @@ def controller_defaults(C: np.ndarray, cpr: float) -> None:
     C[..., C_RWL_FF] = 0.0
     C[..., C_IBUS_MIN] = -np.inf
     C[..., C_IBUS_MAX] = np.inf
+    C[..., C_MECH_BW] = 20.0                        # controller.hpp:52-55
+    C[..., C_ELEC_BW] = 20.0
+    C[..., C_SPIN_MECH] = -10.0
+    C[..., C_SPIN_ELEC] = 10.0
 
 
 def max_measurable_current(requested_current_range: float) -> float:
@@ -462,7 +473,9 @@ class Twin:
             st.C[:, a, C_CONTROL_MODE] = MODE_POSITION
             st.AI[:, a, I_MODE] = MODE_POSITION
             st.AI[:, a, I_CONNECTED] = 1        # closed loop connects the estimates (axis.cpp:270-285)
-            st.AS[:, a, [S_V_PREV, S_V_INT, S_IQ]] = 0.0   # the current controller reset at arming (foc.cpp:47-53)
+            # the controller's and the current controller's reset at arming (controller.cpp:12-19,
+            # foc.cpp:47-53)
+            st.AS[:, a, [S_V_PREV, S_V_INT, S_IQ, S_MECH_P, S_ELEC_P, S_FOC_POWER]] = 0.0
             st.AS[:, a, S_INTEGRATOR] = 0.0
             st.AS[:, a, S_OSC:S_OSC + N_OSC] = 0.0
         every = max(1, int(round(sample_period / self.dt)))

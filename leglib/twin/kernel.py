@@ -1,11 +1,13 @@
 """The twin's kernel: a batch of legs advanced tick by tick at the ODrive's 8 kHz.
 
 Per tick and axis it does what firmware 0.5.x does: the board's checks, the encoder read
-(quantized at the configured CPR, with noise) and its PLL, the cascade (position P ->
-velocity PI with the velocity limit and the integrator's anti-windup, the input modes),
-the current loop (first order at the current-control bandwidth, current limit, torque
-constant) and its fault checks, then the DC bus with the brake resistor, then the leg's
-mechanics (:mod:`leglib.twin.mechanics`). :func:`_run` shares the batch out in blocks over
+(quantized at the encoder's resolution, with noise) and its PLL (in turns of the
+configured cpr), the controller (controller.cpp:143-450: the input modes, the setpoint
+clamps, position P -> velocity PI with the velocity limit, the overspeed check and the
+integrator's anti-windup; every tick in every state on 0.5.6, in closed loop on 0.5.1),
+the current loop (the firmware's PI with its voltage limit on the motor's R, L and
+back-EMF, half a period late) and its fault checks, then the DC bus with the brake
+resistor, then the leg's mechanics (:mod:`leglib.twin.mechanics`). :func:`_run` shares the batch out in blocks over
 the cores; a block the vectorized path allows goes to :mod:`leglib.twin.vector`, every
 other one to :func:`_run_block`, the reference.
 """
@@ -47,6 +49,7 @@ from .layout import (
     C_CURRENT_LIM_MARGIN,
     C_DC_MAX_NEG,
     C_DC_MAX_POS,
+    C_ELEC_BW,
     C_EN_GAIN_SCHED,
     C_EN_OVERSPEED,
     C_EN_TQ_VEL_LIMIT,
@@ -65,6 +68,7 @@ from .layout import (
     C_KT,
     C_MAX_CURRENT,
     C_MAX_REGEN,
+    C_MECH_BW,
     C_MIRROR_AXIS,
     C_MIRROR_RATIO,
     C_PHASE_L,
@@ -72,6 +76,8 @@ from .layout import (
     C_POS_GAIN,
     C_REGEN_ERR_STYLE,
     C_RWL_FF,
+    C_SPIN_ELEC,
+    C_SPIN_MECH,
     C_TORQUE_LIM,
     C_TORQUE_MIRROR_RATIO,
     C_TORQUE_RAMP_RATE,
@@ -103,6 +109,7 @@ from .layout import (
     CONTROLLER_ERROR_INVALID_INPUT_MODE,
     CONTROLLER_ERROR_INVALID_MIRROR_AXIS,
     CONTROLLER_ERROR_OVERSPEED,
+    CONTROLLER_ERROR_SPINOUT_DETECTED,
     F_BELT_K,
     F_ENC_ON,
     I_AXIS_ERR,
@@ -146,12 +153,15 @@ from .layout import (
     S_CAL_I,
     S_CAL_POS,
     S_COUNT_F,
+    S_ELEC_P,
+    S_FOC_POWER,
     S_IBUS,
     S_IBUS_MOTOR,
     S_INTEGRATOR,
     S_IQ,
     S_IQ_MEAS,
     S_IQ_SP,
+    S_MECH_P,
     S_OSC,
     S_POS_CIRC,
     S_POS_EST,
@@ -188,6 +198,7 @@ from .stages import (
     motor_current,
     motor_plant,
     overspeed,
+    spinout,
     torque_command,
     torque_limit,
     wrap_pm,
@@ -343,13 +354,14 @@ def _disarmed(b, a, i, AS, AI, FB, DRV, iq_sp_idle, fw056):
     controller's: on 0.5.6 it runs on while IDLE, on 0.5.1 it keeps its last values; both
     reset it when the axis is armed again (motor.cpp:202, axis.cpp:290-294). On 0.5.6 the
     motor's update still turns the controller's torque into Iq's setpoint (``iq_sp_idle``:
-    0 when there is none, motor.cpp:513-552; fw-v0.5.1 keeps the last armed one)."""
+    0 when there is none, motor.cpp:513-552; fw-v0.5.1 keeps the last armed one). Iq_measured
+    keeps its last value: the current controller, detached at disarm (motor.cpp:279), no
+    longer updates it."""
     AI[b, a, I_MODE] = MODE_IDLE
     AS[b, a, S_IQ] = 0.0
     AS[b, a, S_V_PREV] = 0.0
     if fw056:
         AS[b, a, S_IQ_SP] = iq_sp_idle
-    AS[b, a, S_IQ_MEAS] = 0.0
     AS[b, a, S_IBUS_MOTOR] = 0.0
     FB[_at(R_TAU + _joint_of(a, DRV), i)] = 0.0
 
@@ -511,6 +523,14 @@ def _controller_update(k, b, a, dt, C, AS, AI, TT, tt_period, fw056):
     else:
         AS[b, a, S_INTEGRATOR] = integrator_step(AS[b, a, S_INTEGRATOR], limited, C[b, a, C_VEL_INT_GAIN] * gs,
                                                  dt, v_err, C[b, a, C_VEL_INT_LIMIT])
+    if fw056:                                      # controller.cpp:422-441 (0.5.2+)
+        mech, elec, spun = spinout(AS[b, a, S_MECH_P], AS[b, a, S_ELEC_P], torque, ve, AS[b, a, S_FOC_POWER],
+                                   AS[b, a, S_IQ_MEAS], C[b, a, C_PHASE_R], C[b, a, C_MECH_BW], C[b, a, C_ELEC_BW],
+                                   dt, C[b, a, C_SPIN_MECH], C[b, a, C_SPIN_ELEC])
+        AS[b, a, S_MECH_P] = mech
+        AS[b, a, S_ELEC_P] = elec
+        if spun:
+            return CONTROLLER_ERROR_SPINOUT_DETECTED, 0.0
     return 0, torque
 
 
@@ -562,6 +582,7 @@ def _motor_tick(b, a, i, torque, ve, w_joint, rng, C, AS, AI, FB, DRV, inv_kt, i
         v_ff += C[b, a, C_PHASE_R] * iq_sp
     v, integ = foc_voltage(iq_sp, iq_meas, AS[b, a, S_V_INT], cc_kp, cc_ki_dt, v_ff, vmax)
     AS[b, a, S_V_INT] = integ
+    AS[b, a, S_FOC_POWER] = 1.5 * v * iq_meas     # foc.cpp:175-179: vbus x (mod . Idq)
     if not v == v:        # foc.cpp:31-32 (gains from an uncalibrated R and L): disarmed
         AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_MODULATION_IS_NAN
         AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED

@@ -56,7 +56,10 @@ C_FW_056 = 62
 # inductance its gains come from (motor.cpp:297-302), its feed-forwards (motor.cpp:567-586),
 # the motor's bus-current trip (motor.cpp:728-730)
 (C_PHASE_R, C_PHASE_L, C_BEMF_FF, C_RWL_FF, C_IBUS_MIN, C_IBUS_MAX) = range(63, 69)
-N_CFG = 69
+# the controller's spinout check (controller.cpp:422-441): the power filters' bandwidths
+# [rad/s] and the thresholds [W]
+(C_MECH_BW, C_ELEC_BW, C_SPIN_MECH, C_SPIN_ELEC) = range(69, 73)
+N_CFG = 73
 # float state per axis: AS[b, axis, k]
 S_POS_EST, S_VEL_EST, S_INTEGRATOR, S_IQ, S_WD_TIMER, S_IQ_MEAS = range(6)
 S_OSC = 6           # N_OSC slots of the oscillation monitor (see oscillation_update)
@@ -70,7 +73,10 @@ S_TUNE_PHASE, S_POS_CIRC, S_TQ_OUT = S_COUNT_F + 10, S_COUNT_F + 11, S_COUNT_F +
 # the current loop: Iq's setpoint [A], the q voltage of the previous tick (still applied for
 # half a period) and the PI's integrator (v_current_control_integral_q) [V]
 S_IQ_SP, S_V_PREV, S_V_INT = S_COUNT_F + 13, S_COUNT_F + 14, S_COUNT_F + 15
-N_AXSTATE = S_COUNT_F + 16
+# the spinout check's filtered mechanical and electrical power and the current controller's
+# last power (foc.cpp:175-179: kept while disarmed) [W]
+S_MECH_P, S_ELEC_P, S_FOC_POWER = S_COUNT_F + 16, S_COUNT_F + 17, S_COUNT_F + 18
+N_AXSTATE = S_COUNT_F + 19
 # int state per axis: AI[b, axis, k]; I_SYS_ERR is the board's error (odrv.error), on axis 0
 I_MODE, I_AXIS_ERR, I_CTRL_ERR, I_MOTOR_ERR, I_COUNTS, I_TRAJ_DONE, I_SYS_ERR = range(7)
 # 1 once the controller's estimate inputs are connected to the encoder (the first
@@ -89,6 +95,7 @@ CONTROLLER_ERROR_OVERSPEED = 0x1
 CONTROLLER_ERROR_INVALID_INPUT_MODE = 0x2
 CONTROLLER_ERROR_INVALID_MIRROR_AXIS = 0x8
 CONTROLLER_ERROR_INVALID_ESTIMATE = 0x20
+CONTROLLER_ERROR_SPINOUT_DETECTED = 0x80
 MOTOR_ERROR_UNKNOWN_TORQUE = 0x10000000             # 0.5.6: motor.update without a torque
 MOTOR_ERROR_UNKNOWN_VOLTAGE_COMMAND = 0x100000000   # 0.5.6: the FOC without a voltage command
 MOTOR_ERROR_I_BUS_OUT_OF_RANGE = 0x400000           # 0.5.2+: motor.cpp:728-730
@@ -141,18 +148,20 @@ LANES = 2 * VECTOR_LEGS   # the most legs in a block
 R_Q = 0                   # q1, dq1, q2, dq2, t (the X_ order)
 R_TAU = 5                 # joint 0, joint 1 [N*m] on the joint side
 (V_PE, V_VE, V_INT, V_IQ, V_IQM, V_CNTF, V_PSP, V_VSP, V_TSP, V_IBM, V_TQOUT, V_IQSP, V_VPREV,
- V_VINT) = range(14)
-V_OSC = 14
+ V_VINT, V_MECHP, V_ELECP, V_FOCP) = range(17)
+V_OSC = 17
 N_V = V_OSC + N_OSC
 (K_OFF, K_KP, K_KI, K_VL, K_VTOL, K_IPOS, K_IVEL, K_ITQ, K_KT, K_VG, K_CLIM, K_AE, K_PG, K_VIG,
- K_VIL, K_CCKP, K_INVKT, K_TLIM, K_MAXI, K_MARGIN, K_INVCPR, K_CCKI, K_VMAX) = range(23)
-N_K = 23
+ K_VIL, K_CCKP, K_INVKT, K_TLIM, K_MAXI, K_MARGIN, K_INVCPR, K_CCKI, K_VMAX, K_MECHBW, K_ELECBW,
+ K_SPINM, K_SPINE, K_PHR) = range(28)
+N_K = 28
 # the configuration rows copied as they are: (K_ row, C_ slot)
 K_FROM_C = ((K_OFF, C_COUNT_OFFSET), (K_VL, C_VEL_LIMIT), (K_VTOL, C_VEL_TOL), (K_IPOS, C_INPUT_POS),
             (K_IVEL, C_INPUT_VEL), (K_ITQ, C_INPUT_TORQUE), (K_KT, C_KT), (K_VG, C_VEL_GAIN),
             (K_CLIM, C_CURRENT_LIM), (K_AE, C_ABORT_ERROR), (K_PG, C_POS_GAIN), (K_VIG, C_VEL_INT_GAIN),
             (K_VIL, C_VEL_INT_LIMIT), (K_TLIM, C_TORQUE_LIM), (K_MAXI, C_MAX_CURRENT),
-            (K_MARGIN, C_CURRENT_LIM_MARGIN))
+            (K_MARGIN, C_CURRENT_LIM_MARGIN), (K_MECHBW, C_MECH_BW), (K_ELECBW, C_ELEC_BW),
+            (K_SPINM, C_SPIN_MECH), (K_SPINE, C_SPIN_ELEC), (K_PHR, C_PHASE_R))
 (G_BRAKE_ON, G_BRAKE_R, G_MAX_REGEN, G_DCP, G_DCN, G_VBUS, G_STYLE, G_INV_VBUS, G_INV_BRAKE_R, G_IBUS,
  G_BRAKE_I, G_IBUS_AXES, G_FW056) = range(13)
 N_G = 13

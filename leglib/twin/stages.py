@@ -102,6 +102,20 @@ def integrator_step(integrator, limited, gain, dt, verr, lim):
     return py_min(py_max(integ, -lim), lim)
 
 
+@njit(cache=True, inline="always")
+def spinout(mech0, elec0, torque, ve, foc_power, iq_meas, r_phase, mech_bw, elec_bw, dt, mech_threshold,
+            elec_threshold):
+    """controller.cpp:422-441: the mechanical power the controller asks for (torque x
+    velocity) and the motor's electrical power less its copper loss (the current
+    controller's last power, foc.cpp:175-179; the configured R), each through a first-order
+    filter; braking mechanically while taking electrical power is a spinout (a wrong encoder
+    offset). (mechanical power [W], electrical power [W], spun out)."""
+    mech = mech0 + mech_bw * dt * (torque * ve * (2.0 * math.pi) - mech0)
+    ideal = foc_power - iq_meas * iq_meas * 1.5 * r_phase
+    elec = elec0 + elec_bw * dt * (ideal - elec0)
+    return mech, elec, (mech < mech_threshold) & (elec > elec_threshold)
+
+
 # -- utils.hpp --------------------------------------------------------------------------
 
 @njit(cache=True, inline="always")

@@ -54,6 +54,7 @@ from .layout import (
     C_WD_ENABLE,
     CONTROL_MODE_POSITION,
     CONTROLLER_ERROR_OVERSPEED,
+    CONTROLLER_ERROR_SPINOUT_DETECTED,
     F_ENC_ON,
     G_BRAKE_I,
     G_BRAKE_ON,
@@ -81,6 +82,7 @@ from .layout import (
     K_CCKI,
     K_CCKP,
     K_CLIM,
+    K_ELECBW,
     K_FROM_C,
     K_INVCPR,
     K_INVKT,
@@ -92,8 +94,12 @@ from .layout import (
     K_KT,
     K_MARGIN,
     K_MAXI,
+    K_MECHBW,
     K_OFF,
     K_PG,
+    K_PHR,
+    K_SPINE,
+    K_SPINM,
     K_TLIM,
     K_VG,
     K_VIG,
@@ -137,12 +143,15 @@ from .layout import (
     R_WX1,
     S_BRAKE_I,
     S_COUNT_F,
+    S_ELEC_P,
+    S_FOC_POWER,
     S_IBUS,
     S_IBUS_MOTOR,
     S_INTEGRATOR,
     S_IQ,
     S_IQ_MEAS,
     S_IQ_SP,
+    S_MECH_P,
     S_OSC,
     S_POS_EST,
     S_POS_SP,
@@ -153,12 +162,15 @@ from .layout import (
     S_VEL_EST,
     S_VEL_SP,
     V_CNTF,
+    V_ELECP,
+    V_FOCP,
     V_IBM,
     V_INT,
     V_IQ,
     V_IQM,
     V_IQSP,
     V_MAX_PER_VBUS,
+    V_MECHP,
     V_OSC,
     V_PE,
     V_PSP,
@@ -194,6 +206,7 @@ from .stages import (
     motor_current,
     motor_plant,
     overspeed,
+    spinout,
     torque_command,
     torque_limit,
 )
@@ -268,19 +281,29 @@ def _axis_vector(i, a, FB, IB, q, w_joint, q_rest, rng, alive, dt, dirn, turns_p
     vel_sp = select(fw056, clamp(vel_in, -vel_limit, vel_limit), vel_in)
     tq_sp = select(fw056, clamp(tq_in, -t_lim, t_lim), tq_in)
     over = ctrl & overspeed(True, ve_c, vel_limit, FB[_at(rk + K_VTOL, i)])
-    ok = ctrl & (not over)
     vel_des = clamp(vel_sp + FB[_at(rk + K_PG, i)] * (pos_sp - pe_c), -vel_limit, vel_limit)
     verr = vel_des - ve_c
     integ0 = FB[_at(rv + V_INT, i)]
     torque, limited = torque_limit(torque_command(vel_gain, verr, integ0, tq_sp), t_lim)
     integ = integrator_step(integ0, limited, FB[_at(rk + K_VIG, i)], dt, verr, FB[_at(rk + K_VIL, i)])
-    unknown_torque = over & fw056 & connected
-    ctrl_err = IB[_at(rw + W_CTRLERR, i)] | select(over, CONTROLLER_ERROR_OVERSPEED, 0)
-    axis_err = axis_err0 | select(over, AXIS_ERROR_CONTROLLER_FAILED, 0) \
+    # the spinout check (0.5.6), on the current controller's last power and current
+    iqm0 = FB[_at(rv + V_IQM, i)]
+    mechp0, elecp0, focp0 = FB[_at(rv + V_MECHP, i)], FB[_at(rv + V_ELECP, i)], FB[_at(rv + V_FOCP, i)]
+    mechp, elecp, spun = spinout(mechp0, elecp0, torque, ve_c, focp0, iqm0, FB[_at(rk + K_PHR, i)],
+                                 FB[_at(rk + K_MECHBW, i)], FB[_at(rk + K_ELECBW, i)], dt, FB[_at(rk + K_SPINM, i)],
+                                 FB[_at(rk + K_SPINE, i)])
+    powers = ctrl & (not over) & fw056
+    spin = powers & spun
+    fail = over | spin
+    ok = ctrl & (not fail)
+    unknown_torque = fail & fw056 & connected
+    ctrl_err = IB[_at(rw + W_CTRLERR, i)] | select(over, CONTROLLER_ERROR_OVERSPEED, 0) \
+        | select(spin, CONTROLLER_ERROR_SPINOUT_DETECTED, 0)
+    axis_err = axis_err0 | select(fail, AXIS_ERROR_CONTROLLER_FAILED, 0) \
         | select(unknown_torque & armed, AXIS_ERROR_MOTOR_FAILED, 0)
     motor_err = IB[_at(rw + W_MOTERR, i)] | select(unknown_torque, MOTOR_ERROR_UNKNOWN_TORQUE, 0) \
         | select(unknown_torque & armed, MOTOR_ERROR_UNKNOWN_VOLTAGE_COMMAND, 0)
-    active = armed & (not over)
+    active = armed & (not fail)
     # leglib's abort rule on an armed axis
     abort_error = FB[_at(rk + K_AE, i)]
     err = pos_sp - pe
@@ -316,7 +339,6 @@ def _axis_vector(i, a, FB, IB, q, w_joint, q_rest, rng, alive, dt, dirn, turns_p
     # under a condition does not)
     cntf0 = FB[_at(rv + V_CNTF, i)]
     counts_i0 = IB[_at(rw + W_COUNTS, i)]
-    iqm0 = FB[_at(rv + V_IQM, i)]
     ibm0 = FB[_at(rv + V_IBM, i)]
     iqsp0 = FB[_at(rv + V_IQSP, i)]
     psp0, vsp0, tsp0 = FB[_at(rv + V_PSP, i)], FB[_at(rv + V_VSP, i)], FB[_at(rv + V_TSP, i)]
@@ -326,6 +348,7 @@ def _axis_vector(i, a, FB, IB, q, w_joint, q_rest, rng, alive, dt, dirn, turns_p
     tqp0 = IB[_at(rx + WX_TQP, i)]
     run = alive & active
     idle = alive & (not active)
+    flowing = alive & flows
     updated = alive & ctrl
     done = alive & ok
     osc_new = run & osc_on
@@ -333,16 +356,19 @@ def _axis_vector(i, a, FB, IB, q, w_joint, q_rest, rng, alive, dt, dirn, turns_p
     FB[_at(rv + V_VE, i)] = select(alive, ve, ve0)
     FB[_at(rv + V_CNTF, i)] = select(alive, counts, cntf0)
     IB[_at(rw + W_COUNTS, i)] = select(alive, counts_i, counts_i0)
-    FB[_at(rv + V_INT, i)] = select(done, integ, integ0)
+    integrated = alive & ctrl & (not over)
+    FB[_at(rv + V_INT, i)] = select(integrated, integ, integ0)
+    FB[_at(rv + V_MECHP, i)] = select(alive & powers, mechp, mechp0)
+    FB[_at(rv + V_ELECP, i)] = select(alive & powers, elecp, elecp0)
+    FB[_at(rv + V_FOCP, i)] = select(flowing, 1.5 * v * iq_meas, focp0)
     FB[_at(rv + V_TQOUT, i)] = select(done, torque, tqo0)
     IB[_at(rx + WX_TQP, i)] = select(done, 1, select(alive, 0, tqp0))
-    flowing = alive & flows
     iqsp_idle = select(done & connected, iq_sp, 0.0)
     FB[_at(rv + V_IQ, i)] = select(flowing, i_next, select(run | idle, 0.0, iq0))
     FB[_at(rv + V_VPREV, i)] = select(flowing, v, select(run | idle, 0.0, vprev0))
     FB[_at(rv + V_VINT, i)] = select(flowing, vint, vint0)
     FB[_at(rv + V_IQSP, i)] = select(run, iq_sp, select(idle & fw056, iqsp_idle, iqsp0))
-    FB[_at(rv + V_IQM, i)] = select(run, iq_meas, select(idle, 0.0, iqm0))
+    FB[_at(rv + V_IQM, i)] = select(run, iq_meas, iqm0)
     FB[_at(rv + V_IBM, i)] = select(flowing, ib, select(run | idle, 0.0, ibm0))
     FB[_at(rv + V_PSP, i)] = select(updated, pos_sp, psp0)
     FB[_at(rv + V_VSP, i)] = select(updated, vel_sp, vsp0)
@@ -466,8 +492,8 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT,
     FB = np.zeros(N_FROWS * LANES)
     IB = np.zeros(N_IROWS * LANES, np.int64)
     f_slots = (S_POS_EST, S_VEL_EST, S_INTEGRATOR, S_IQ, S_IQ_MEAS, S_COUNT_F, S_POS_SP, S_VEL_SP, S_TQ_SP,
-               S_IBUS_MOTOR, S_TQ_OUT, S_IQ_SP, S_V_PREV, S_V_INT, S_OSC, S_OSC + 1, S_OSC + 2, S_OSC + 3,
-               S_OSC + 4, S_OSC + 5)
+               S_IBUS_MOTOR, S_TQ_OUT, S_IQ_SP, S_V_PREV, S_V_INT, S_MECH_P, S_ELEC_P, S_FOC_POWER, S_OSC,
+               S_OSC + 1, S_OSC + 2, S_OSC + 3, S_OSC + 4, S_OSC + 5)
     w_slots = (I_MODE, I_AXIS_ERR, I_CTRL_ERR, I_MOTOR_ERR, I_COUNTS)
     wx_slots = (I_CONNECTED, I_TQ_PRESENT)
     for i in range(nb):

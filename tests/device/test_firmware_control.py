@@ -428,6 +428,33 @@ def test_back_emf_feedforward():
     assert integ[False][0] - integ[True][0] == pytest.approx(emf, rel=0.15)
 
 
+def test_spinout_check_and_the_power_estimates():
+    """controller.cpp:422-441 (0.5.2+): the controller filters the mechanical power it asks
+    for (torque x vel_estimate) and the motor's electrical power less its copper loss (the
+    current controller's power, foc.cpp:175-179); braking mechanically while taking
+    electrical power is SPINOUT_DETECTED. A healthy motor turning steadily shows the two
+    nearly equal (the back-EMF's power); thresholds that any state meets trip at once, on
+    0.5.6 IDLE included."""
+    odrv = _calibrated(seed=35)
+    a, sign = _opening(odrv)
+    ax = getattr(odrv, f"axis{a}")
+    ax.controller.config.control_mode = 2
+    ax.controller.config.vel_limit = 1.0
+    _closed_loop(odrv, ax)
+    ax.controller.input_vel = 0.6 * sign
+    odrv.sleep(0.35)
+    mech, elec = ax.controller.mechanical_power, ax.controller.electrical_power
+    assert mech > 0.05 and elec == pytest.approx(mech, rel=0.25)
+    assert ax.error == 0
+    _idle(odrv, ax)
+    odrv.axis0.controller.config.spinout_mechanical_power_threshold = 100.0
+    odrv.axis0.controller.config.spinout_electrical_power_threshold = -100.0
+    odrv.sleep(0.001)
+    assert odrv.axis0.controller.error == 0x80 and odrv.axis0.error == CONTROLLER_FAILED
+    with pytest.raises(AttributeError):
+        _device("0.5.1").axis0.controller.mechanical_power
+
+
 # -- D. input modes, control modes ---------------------------------------------------------
 
 @pytest.mark.parametrize("firmware", ["0.5.6", "0.5.1"])

@@ -20,8 +20,9 @@ What the firmware does and this device does too (file:line of fw-v0.5.6 unless m
   in position control (axis.cpp:290-291, controller.cpp:115-128).
 - Calibration is motion: motor calibration locks the rotor at ``calibration_current``
   (3 s resistance, then 1.25 s inductance measurement; motor.cpp:416-423,457-463), then
-  the encoder offset calibration re-references the counts (``shadow_count :=
-  count_in_cpr``, encoder.cpp:344), locks 1 s, scans 16*pi electrical rad forward at
+  the encoder offset calibration (its ``shadow_count := count_in_cpr``, encoder.cpp:344,
+  is undone by the incremental encoder's next update, encoder.cpp:480,657-662,762: the
+  counts stay in the boot frame) locks 1 s, scans 16*pi electrical rad forward at
   4*pi rad/s and back (encoder.cpp:378-447, encoder.hpp:22-23) with the leg and its stop
   in the loop, and checks the scan against CPR and pole pairs to 2 % (encoder.cpp:425-433).
 - The watchdog counts down every tick while enabled, in every state, and is only reloaded
@@ -38,6 +39,10 @@ What the firmware does and this device does too (file:line of fw-v0.5.6 unless m
   ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT on ``odrv.error`` (low_level.cpp:320-376,
   main.cpp:313-320; on 0.5.1 as a motor error, fw-v0.5.1 low_level.cpp:620-668).
 - Any axis error disarms and idles the axis (main.cpp:413-420, axis.cpp:343-350).
+- The controller updates every tick in every state on 0.5.6 (main.cpp:438-446), on
+  estimates connected at the first closed loop (axis.cpp:270-285): its overspeed check
+  trips while IDLE too; on 0.5.1 it runs in closed loop only. Its settings and the current
+  loop act in the kernel (:mod:`leglib.twin.kernel`; tests/device/test_firmware_control.py).
 
 Extras the real device does not have (used through ``Device.sim`` by
 :mod:`leglib.experiments`): ``sleep(s)``, ``time``, ``twin``, ``step_batch``, ``reboot()``,
@@ -249,6 +254,12 @@ ENDPOINTS = (
     Endpoint("axis*.controller.autotuning.vel_amplitude", C(L.C_TUNE_VEL_AMP), since="0.5.2"),
     Endpoint("axis*.controller.autotuning.torque_amplitude", C(L.C_TUNE_TQ_AMP), since="0.5.2"),
     Endpoint("axis*.controller.move_incremental", Call("_move_incremental")),            # controller.cpp:40-48
+    Endpoint("axis*.controller.config.mechanical_power_bandwidth", C(L.C_MECH_BW), since="0.5.2"),
+    Endpoint("axis*.controller.config.electrical_power_bandwidth", C(L.C_ELEC_BW), since="0.5.2"),
+    Endpoint("axis*.controller.config.spinout_mechanical_power_threshold", C(L.C_SPIN_MECH), since="0.5.2"),
+    Endpoint("axis*.controller.config.spinout_electrical_power_threshold", C(L.C_SPIN_ELEC), since="0.5.2"),
+    Endpoint("axis*.controller.mechanical_power", S(L.S_MECH_P), since="0.5.2"),
+    Endpoint("axis*.controller.electrical_power", S(L.S_ELEC_P), since="0.5.2"),
     Endpoint("axis*.motor.config.torque_lim", C(L.C_TORQUE_LIM)),
     Endpoint("axis*.motor.config.current_lim_margin", C(L.C_CURRENT_LIM_MARGIN)),
     Endpoint("axis*.motor.config.requested_current_range", Key("requested_current_range"),
@@ -378,7 +389,8 @@ class VirtualODrive:
         st.AS[0, :, L.S_IQ_MEAS] = 0.0
         # the controller's state from scratch (controller.hpp:103-130; its estimate inputs
         # unconnected until the first closed loop: AI zeroed above)
-        for slot in (L.S_POS_SP, L.S_VEL_SP, L.S_TQ_SP, L.S_TQ_OUT, L.S_TUNE_PHASE, L.S_POS_CIRC):
+        for slot in (L.S_POS_SP, L.S_VEL_SP, L.S_TQ_SP, L.S_TQ_OUT, L.S_TUNE_PHASE, L.S_POS_CIRC, L.S_MECH_P,
+                     L.S_ELEC_P, L.S_FOC_POWER, L.S_V_INT, L.S_V_PREV, L.S_IQ_SP):
             st.AS[0, :, slot] = 0.0
         st.ABORT[...] = 0
         st.C[0, :, L.C_INPUT_POS] = 0.0
@@ -733,7 +745,7 @@ class VirtualODrive:
         st.AI[0, a, L.I_CONNECTED] = 1
         # controller and current controller reset at arming (motor.cpp:202-206,
         # controller.cpp:12-18, foc.cpp:47-53)
-        st.AS[0, a, [L.S_IQ, L.S_V_PREV, L.S_V_INT]] = 0.0
+        st.AS[0, a, [L.S_IQ, L.S_V_PREV, L.S_V_INT, L.S_FOC_POWER, L.S_MECH_P, L.S_ELEC_P]] = 0.0
         st.AS[0, a, L.S_VEL_SP] = 0.0
         st.AS[0, a, L.S_TQ_SP] = 0.0
         st.AS[0, a, L.S_INTEGRATOR] = 0.0
