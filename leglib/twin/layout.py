@@ -150,7 +150,12 @@ R_TAU = 5                 # joint 0, joint 1 [N*m] on the joint side
 (V_PE, V_VE, V_INT, V_IQ, V_IQM, V_CNTF, V_PSP, V_VSP, V_TSP, V_IBM, V_TQOUT, V_IQSP, V_VPREV,
  V_VINT, V_MECHP, V_ELECP, V_FOCP) = range(17)
 V_OSC = 17
-N_V = V_OSC + N_OSC
+N_VS = V_OSC + N_OSC      # the rows copied from the float state AS, in this order
+# the controller's flags, estimates connected and torque output present (the int state
+# I_CONNECTED, I_TQ_PRESENT), as floats: more int rows in the axes' loop would add run-time
+# overlap checks between FB and IB, past what the compiler vectorizes
+V_CONN, V_TQP = N_VS, N_VS + 1
+N_V = N_VS + 2
 (K_OFF, K_KP, K_KI, K_VL, K_VTOL, K_IPOS, K_IVEL, K_ITQ, K_KT, K_VG, K_CLIM, K_AE, K_PG, K_VIG,
  K_VIL, K_CCKP, K_INVKT, K_TLIM, K_MAXI, K_MARGIN, K_INVCPR, K_CCKI, K_VMAX, K_MECHBW, K_ELECBW,
  K_SPINM, K_SPINE, K_PHR) = range(28)
@@ -163,8 +168,8 @@ K_FROM_C = ((K_OFF, C_COUNT_OFFSET), (K_VL, C_VEL_LIMIT), (K_VTOL, C_VEL_TOL), (
             (K_MARGIN, C_CURRENT_LIM_MARGIN), (K_MECHBW, C_MECH_BW), (K_ELECBW, C_ELEC_BW),
             (K_SPINM, C_SPIN_MECH), (K_SPINE, C_SPIN_ELEC), (K_PHR, C_PHASE_R))
 (G_BRAKE_ON, G_BRAKE_R, G_MAX_REGEN, G_DCP, G_DCN, G_VBUS, G_STYLE, G_INV_VBUS, G_INV_BRAKE_R, G_IBUS,
- G_BRAKE_I, G_IBUS_AXES, G_FW056) = range(13)
-N_G = 13
+ G_BRAKE_I, G_IBUS_AXES, G_FW056, G_TAU_AXIS0) = range(14)
+N_G = 14
 R_V0, R_V1 = 7, 7 + N_V                       # axis 0, axis 1
 R_K0, R_K1 = 7 + 2 * N_V, 7 + 2 * N_V + N_K
 R_G = 7 + 2 * N_V + 2 * N_K
@@ -179,10 +184,4 @@ R_SYS = R_DEAD + 2        # the board's error
 R_AB = R_DEAD + 3         # abort tick, abort reason
 R_RNG = R_DEAD + 5        # the noise stream's state (its bits)
 R_CODE = R_DEAD + 6       # the abort code the axes raised this tick
-# more int rows per axis, after the per-leg ones (appended, so that the rows above keep
-# their numbers: see the module's note on numba's cache): the controller's estimates
-# connected, its torque output present this tick
-WX_CONN, WX_TQP = range(2)
-N_WX = 2
-R_WX0, R_WX1 = R_CODE + 1, R_CODE + 1 + N_WX
-N_IROWS = R_WX1 + N_WX
+N_IROWS = R_CODE + 1

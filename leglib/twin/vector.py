@@ -68,6 +68,7 @@ from .layout import (
     G_INV_VBUS,
     G_MAX_REGEN,
     G_STYLE,
+    G_TAU_AXIS0,
     G_VBUS,
     I_AXIS_ERR,
     I_CONNECTED,
@@ -120,8 +121,8 @@ from .layout import (
     N_IROWS,
     N_K,
     N_V,
+    N_VS,
     N_W,
-    N_WX,
     ODRIVE_ERROR_DC_BUS_OVER_CURRENT,
     ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT,
     R_AB,
@@ -139,8 +140,6 @@ from .layout import (
     R_V1,
     R_W0,
     R_W1,
-    R_WX0,
-    R_WX1,
     S_BRAKE_I,
     S_COUNT_F,
     S_ELEC_P,
@@ -162,6 +161,7 @@ from .layout import (
     S_VEL_EST,
     S_VEL_SP,
     V_CNTF,
+    V_CONN,
     V_ELECP,
     V_FOCP,
     V_IBM,
@@ -175,6 +175,7 @@ from .layout import (
     V_PE,
     V_PSP,
     V_TQOUT,
+    V_TQP,
     V_TSP,
     V_VE,
     V_VINT,
@@ -185,8 +186,6 @@ from .layout import (
     W_CTRLERR,
     W_MODE,
     W_MOTERR,
-    WX_CONN,
-    WX_TQP,
 )
 from .mechanics import _at, _mechanics_plain
 from .rng import _normal
@@ -248,7 +247,7 @@ def _axis_vector(i, a, FB, IB, q, w_joint, q_rest, rng, alive, dt, dirn, turns_p
     ``q``: what the per-leg tick of :func:`_run_block` does for an axis in position
     control, armed or IDLE, with passthrough inputs, the same operations in the same order,
     branches turned into selects. Returns (rng, joint torque, bus current, abort code)."""
-    rv, rk, rw, rx = R_V0 + a * N_V, R_K0 + a * N_K, R_W0 + a * N_W, R_WX0 + a * N_WX
+    rv, rk, rw = R_V0 + a * N_V, R_K0 + a * N_K, R_W0 + a * N_W
     # encoder and PLL: every tick, IDLE included
     turns = dirn * (q - q_rest) * turns_per_rad
     rng1, nz = _normal(rng)
@@ -265,7 +264,7 @@ def _axis_vector(i, a, FB, IB, q, w_joint, q_rest, rng, alive, dt, dirn, turns_p
     armed = mode != MODE_IDLE
     # the controller: every tick on 0.5.6, in closed loop on 0.5.1; its estimates the
     # encoder's once connected, else 0
-    connected = IB[_at(rx + WX_CONN, i)] != 0
+    connected = FB[_at(rv + V_CONN, i)] != 0.0
     ctrl = fw056 | armed
     pe_c = select(connected, pe, 0.0)
     ve_c = select(connected, ve, 0.0)
@@ -345,7 +344,7 @@ def _axis_vector(i, a, FB, IB, q, w_joint, q_rest, rng, alive, dt, dirn, turns_p
     tqo0 = FB[_at(rv + V_TQOUT, i)]
     ctrl_err0 = IB[_at(rw + W_CTRLERR, i)]
     motor_err0 = IB[_at(rw + W_MOTERR, i)]
-    tqp0 = IB[_at(rx + WX_TQP, i)]
+    tqp0 = FB[_at(rv + V_TQP, i)]
     run = alive & active
     idle = alive & (not active)
     flowing = alive & flows
@@ -362,7 +361,7 @@ def _axis_vector(i, a, FB, IB, q, w_joint, q_rest, rng, alive, dt, dirn, turns_p
     FB[_at(rv + V_ELECP, i)] = select(alive & powers, elecp, elecp0)
     FB[_at(rv + V_FOCP, i)] = select(flowing, 1.5 * v * iq_meas, focp0)
     FB[_at(rv + V_TQOUT, i)] = select(done, torque, tqo0)
-    IB[_at(rx + WX_TQP, i)] = select(done, 1, select(alive, 0, tqp0))
+    FB[_at(rv + V_TQP, i)] = select(done, 1.0, select(alive, 0.0, tqp0))
     iqsp_idle = select(done & connected, iq_sp, 0.0)
     FB[_at(rv + V_IQ, i)] = select(flowing, i_next, select(run | idle, 0.0, iq0))
     FB[_at(rv + V_VPREV, i)] = select(flowing, v, select(run | idle, 0.0, vprev0))
@@ -417,33 +416,43 @@ def _control_vector(k, dt, FB, IB, nb, DRV):
     q_rest_joint0, q_rest_joint1 = DRV[3], DRV[4]
     turns_per_rad = N / (2.0 * math.pi)
     a_half, inv_r, m_half = motor_plant(DRV, dt)
+    axis0_on_joint0 = j_of_a0 == 0
+    # one loop per axis: both axes in one loop would need more run-time overlap checks
+    # between the block's arrays than the compiler makes, and it would not vectorize. Per
+    # leg the axes still run in order (the noise stream, the mirrored torque)
     for i in range(nb):
         alive = IB[_at(R_DEAD, i)] == 0
-        inv_vbus = FB[_at(R_G + G_INV_VBUS, i)]
-        fw056 = FB[_at(R_G + G_FW056, i)] > 0.0
-        rng = np.uint64(IB[_at(R_RNG, i)])
-        ibus_sum = 0.0
         # the joints' angles, read from fixed rows (a row chosen at run time would keep
         # the compiler from proving the accesses independent)
         q_joint0, q_joint1 = FB[_at(R_Q, i)], FB[_at(R_Q + 2, i)]
         w_joint0, w_joint1 = FB[_at(R_Q + 1, i)], FB[_at(R_Q + 3, i)]
-        axis0_on_joint0 = j_of_a0 == 0
         rng, tau_axis0, ib0, code0 = _axis_vector(
             i, 0, FB, IB, select(axis0_on_joint0, q_joint0, q_joint1), select(axis0_on_joint0, w_joint0, w_joint1),
-            select(axis0_on_joint0, q_rest_joint0, q_rest_joint1), rng, alive, dt, dirn, turns_per_rad, cpr,
-            enc_noise, cur_noise, quantize, N, kt_true, r_phase, inv_vbus, fw056, a_half, inv_r, m_half)
+            select(axis0_on_joint0, q_rest_joint0, q_rest_joint1), np.uint64(IB[_at(R_RNG, i)]), alive, dt, dirn,
+            turns_per_rad, cpr, enc_noise, cur_noise, quantize, N, kt_true, r_phase,
+            FB[_at(R_G + G_INV_VBUS, i)], FB[_at(R_G + G_FW056, i)] > 0.0, a_half, inv_r, m_half)
+        IB[_at(R_RNG, i)] = np.int64(rng)
+        FB[_at(R_G + G_TAU_AXIS0, i)] = tau_axis0
+        FB[_at(R_G + G_IBUS_AXES, i)] = ib0
+        IB[_at(R_CODE, i)] = code0
+    for i in range(nb):
+        alive = IB[_at(R_DEAD, i)] == 0
+        q_joint0, q_joint1 = FB[_at(R_Q, i)], FB[_at(R_Q + 2, i)]
+        w_joint0, w_joint1 = FB[_at(R_Q + 1, i)], FB[_at(R_Q + 3, i)]
         rng, tau_axis1, ib1, code1 = _axis_vector(
             i, 1, FB, IB, select(axis0_on_joint0, q_joint1, q_joint0), select(axis0_on_joint0, w_joint1, w_joint0),
-            select(axis0_on_joint0, q_rest_joint1, q_rest_joint0), rng, alive, dt, dirn, turns_per_rad, cpr,
-            enc_noise, cur_noise, quantize, N, kt_true, r_phase, inv_vbus, fw056, a_half, inv_r, m_half)
-        ibus_sum += ib0
+            select(axis0_on_joint0, q_rest_joint1, q_rest_joint0), np.uint64(IB[_at(R_RNG, i)]), alive, dt, dirn,
+            turns_per_rad, cpr, enc_noise, cur_noise, quantize, N, kt_true, r_phase,
+            FB[_at(R_G + G_INV_VBUS, i)], FB[_at(R_G + G_FW056, i)] > 0.0, a_half, inv_r, m_half)
+        tau_axis0, code0 = FB[_at(R_G + G_TAU_AXIS0, i)], IB[_at(R_CODE, i)]
+        ibus_sum = 0.0
+        ibus_sum += FB[_at(R_G + G_IBUS_AXES, i)]
         ibus_sum += ib1
-        code = select(code1 != ABORT_NONE, code1, code0)
         IB[_at(R_RNG, i)] = np.int64(rng)
         FB[_at(R_TAU, i)] = select(axis0_on_joint0, tau_axis0, tau_axis1)
         FB[_at(R_TAU + 1, i)] = select(axis0_on_joint0, tau_axis1, tau_axis0)
         FB[_at(R_G + G_IBUS_AXES, i)] = ibus_sum
-        IB[_at(R_CODE, i)] = code
+        IB[_at(R_CODE, i)] = select(code1 != ABORT_NONE, code1, code0)
     # a second loop for the board: one loop for everything would hold more memory accesses
     # than the compiler groups for its run-time overlap checks, and it would not vectorize
     for i in range(nb):
@@ -495,7 +504,6 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT,
                S_IBUS_MOTOR, S_TQ_OUT, S_IQ_SP, S_V_PREV, S_V_INT, S_MECH_P, S_ELEC_P, S_FOC_POWER, S_OSC,
                S_OSC + 1, S_OSC + 2, S_OSC + 3, S_OSC + 4, S_OSC + 5)
     w_slots = (I_MODE, I_AXIS_ERR, I_CTRL_ERR, I_MOTOR_ERR, I_COUNTS)
-    wx_slots = (I_CONNECTED, I_TQ_PRESENT)
     for i in range(nb):
         b = b0 + i
         for n in range(5):
@@ -506,12 +514,12 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT,
             rv = R_V0 if a == 0 else R_V1
             rk = R_K0 if a == 0 else R_K1
             rw = R_W0 if a == 0 else R_W1
-            for n in range(N_V):
+            for n in range(N_VS):
                 FB[_at(rv + n, i)] = AS[b, a, f_slots[n]]
             for n in range(N_W):
                 IB[_at(rw + n, i)] = AI[b, a, w_slots[n]]
-            for n in range(N_WX):
-                IB[_at((R_WX0 if a == 0 else R_WX1) + n, i)] = AI[b, a, wx_slots[n]]
+            FB[_at(rv + V_CONN, i)] = float(AI[b, a, I_CONNECTED])
+            FB[_at(rv + V_TQP, i)] = float(AI[b, a, I_TQ_PRESENT])
             for n in range(len(K_FROM_C)):
                 FB[_at(rk + K_FROM_C[n][0], i)] = C[b, a, K_FROM_C[n][1]]
             kp = 2.0 * C[b, a, C_ENCODER_BW]
@@ -572,12 +580,12 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT,
         for a in range(2):
             rv = R_V0 if a == 0 else R_V1
             rw = R_W0 if a == 0 else R_W1
-            for n in range(N_V):
+            for n in range(N_VS):
                 AS[b, a, f_slots[n]] = FB[_at(rv + n, i)]
             for n in range(N_W):
                 AI[b, a, w_slots[n]] = IB[_at(rw + n, i)]
-            for n in range(N_WX):
-                AI[b, a, wx_slots[n]] = IB[_at((R_WX0 if a == 0 else R_WX1) + n, i)]
+            AI[b, a, I_CONNECTED] = int(FB[_at(rv + V_CONN, i)])
+            AI[b, a, I_TQ_PRESENT] = int(FB[_at(rv + V_TQP, i)])
         AS[b, 0, S_IBUS] = FB[_at(R_G + G_IBUS, i)]
         AS[b, 0, S_BRAKE_I] = FB[_at(R_G + G_BRAKE_I, i)]
         AI[b, 0, I_SYS_ERR] = IB[_at(R_SYS, i)]
