@@ -403,29 +403,35 @@ def test_i_bus_hard_limits_trip_in_every_state():
         _device("0.5.1").axis0.motor.config.I_bus_hard_max
 
 
-def test_back_emf_feedforward():
-    """motor.cpp:579-586: with bEMF_FF_enable the current PI gets the back-EMF
-    (2/3 kt / pole_pairs x electrical speed) as feed-forward, so its integrator no longer
-    carries it: moving at constant speed the integrator drops by about that voltage."""
+def test_the_current_loops_feedforwards():
+    """motor.cpp:567-586: with bEMF_FF_enable the current PI gets the back-EMF
+    (2/3 kt / pole_pairs x electrical speed) as feed-forward, with R_wL_FF_enable R x Iq
+    (the d-axis terms act on Id, which the twin holds at 0): the PI's integrator no longer
+    carries them. Turning at constant speed it drops by about that voltage."""
     integ = {}
-    for ff in (False, True):
+    for ff in ("none", "bEMF_FF_enable", "R_wL_FF_enable"):
         odrv = _calibrated(seed=22)
         a, sign = _opening(odrv)
         ax = getattr(odrv, f"axis{a}")
-        ax.motor.config.bEMF_FF_enable = ff
+        if ff != "none":
+            setattr(ax.motor.config, ff, True)
         ax.controller.config.control_mode = 2
         ax.controller.config.vel_limit = 1.0
         _closed_loop(odrv, ax)
         ax.controller.input_vel = 0.8 * sign
         odrv.sleep(0.25)
-        vals, vels = [], []
+        vals, vels, iqs = [], [], []
         for _ in range(20):
             odrv.sleep(0.002)
             vals.append(float(odrv.st.AS[0, a, L.S_V_INT]))
             vels.append(float(odrv.st.AS[0, a, L.S_VEL_EST]))
-        integ[ff] = (np.mean(vals), np.mean(vels))
-    emf = (2.0 / 3.0) * KT * 2 * math.pi * integ[True][1]
-    assert integ[False][0] - integ[True][0] == pytest.approx(emf, rel=0.15)
+            iqs.append(float(odrv.st.AS[0, a, L.S_IQ_SP]))
+        integ[ff] = (np.mean(vals), np.mean(vels), np.mean(iqs))
+    emf = (2.0 / 3.0) * KT * 2 * math.pi * integ["bEMF_FF_enable"][1]
+    assert integ["none"][0] - integ["bEMF_FF_enable"][0] == pytest.approx(emf, rel=0.15)
+    r_iq = odrv.twin.motor.phase_resistance * integ["R_wL_FF_enable"][2]
+    assert abs(r_iq) > 0.02
+    assert integ["none"][0] - integ["R_wL_FF_enable"][0] == pytest.approx(r_iq, rel=0.2)
 
 
 def test_spinout_check_and_the_power_estimates():
