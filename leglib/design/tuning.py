@@ -39,6 +39,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .. import checks, plots
+from ..device import bench
 from ..device.session import as_device, check_gains
 from ..errors import ArgumentError, IdentificationError
 from ..experiments.step import step_response
@@ -269,6 +270,9 @@ class Tuning:
     tolerance: float
     model: AxisModel = field(repr=False)
     message: str = ""
+    #: what the design did on the leg and its bench time (:class:`leglib.device.bench.BenchReport`;
+    #: on the twin: what it would take on the leg)
+    bench: object = field(default=None, repr=False)
 
     @property
     def uncertainty(self) -> tuple:
@@ -349,7 +353,7 @@ def _check_arguments(zeta, fn, max_experiments, tolerance, payload_guess, start,
 def tune(odrv, zeta: float, fn: float, max_experiments: int = 10, *, vel_integrator_gain: float = 0.01,
            tolerance: float = TOLERANCE, payload_guess: float = 0.0, step: float = 0.4,
            duration: float = 1.5, sample_period: float = 0.002, start=None, progress: bool = False,
-           on_experiment=None) -> Tuning:
+           on_experiment=None, max_minutes: float | None = None) -> Tuning:
     """Gains that give the leg on ``odrv`` the step dynamics (``zeta``, ``fn`` [Hz]) of its
     foot height, found with at most ``max_experiments`` step responses on the device.
 
@@ -369,13 +373,18 @@ def tune(odrv, zeta: float, fn: float, max_experiments: int = 10, *, vel_integra
         the configuration's maxima
     progress : print one line per experiment
     on_experiment : called as ``on_experiment(experiment)`` after each step (None: not called)
+    max_minutes : on a real leg, the longest the design may take [min] (default
+        :data:`leglib.device.bench.DEFAULT_MAX_BENCH_MINUTES`): refused before the first step
+        (:class:`leglib.errors.BenchLimitError`, giving the estimate) when ``max_experiments``
+        steps would take longer; on the twin nothing is refused
 
     Every argument is checked before the first step runs on the device (:class:`leglib.errors.ArgumentError`, a ValueError, naming it).
 
     Returns
     -------
     :class:`Tuning`; ``reached`` is False (and ``message`` says why) when the budget ran out
-    first, and then ``gains`` are the best experiment's.
+    first, and then ``gains`` are the best experiment's; ``bench`` says what it did on the
+    leg and its bench time (on the twin: what it would take on the leg).
     """
 
     payload_guess, start = _check_arguments(zeta, fn, max_experiments, tolerance, payload_guess, start, progress,
@@ -387,8 +396,11 @@ def tune(odrv, zeta: float, fn: float, max_experiments: int = 10, *, vel_integra
         check_gains(cfg, start[0], start[1], vel_integrator_gain)
     target = (float(zeta), float(fn))
     bounds = ((0.5, float(cfg.max_pos_gain)), (1e-3, float(cfg.max_vel_gain)))
+    bench.require(dev, max_experiments * bench.step_seconds(duration, bench.STEP_SETTLE, sample_period), max_minutes,
+                  f"tune: up to {max_experiments} steps")
     model = nominal_model(dev, payload_guess, step, duration, sample_period)
     experiments: list[Experiment] = []
+    since = bench.mark(dev)
 
     def run(gains, role, predicted):
         resp = step_response(dev, *gains, step=step, duration=duration, sample_period=sample_period)
@@ -448,4 +460,5 @@ def tune(odrv, zeta: float, fn: float, max_experiments: int = 10, *, vel_integra
         f"are the best experiment's" + ("" if good else "; no experiment could be identified"))
     pred = model.predict(final.gains)
     return Tuning(target=target, gains=final.gains, predicted=pred, measured=final.measured,
-                  experiments=experiments, reached=reached, tolerance=tolerance, model=model, message=message)
+                  experiments=experiments, reached=reached, tolerance=tolerance, model=model, message=message,
+                  bench=bench.report(since, dev))
