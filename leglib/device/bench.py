@@ -258,9 +258,13 @@ class BenchReport:
         parts = []
         for kind in ("save", "reboot", "calibration", "sweep", "step", "torque", "hold"):
             n = self.counts.get(kind, 0)
-            if n or kind in ("reboot", "calibration"):
-                one, many = KINDS[kind]
+            one, many = KINDS[kind]
+            if n:
                 parts.append(f"{n} {one if n == 1 else many}")
+            elif kind == "reboot":
+                parts.append("no reboot")
+            elif kind == "calibration":
+                parts.append("no calibration")
         return ", ".join(parts)
 
     def __str__(self) -> str:
@@ -394,7 +398,7 @@ def require(dev, seconds: float, max_minutes, what: str, parameter: str = "max_m
 
 
 class Run:
-    """A run on the leg from its start (:func:`start`) to its report (:meth:`report`)."""
+    """A run on the leg from its start (:func:`leglib.device.setup.start_run`) to its report (:meth:`report`)."""
 
     def __init__(self, dev, plan: Plan, planned: float, limit: float, what: str):
         self.serial, self.backend, self.plan = dev.serial, dev.backend, plan

@@ -59,18 +59,26 @@ class SweepResult:
         return list_measurements(self.out_dir)
 
 
-def thesis_grid() -> np.ndarray:
-    """Listing 7.4's grid of gains.
+def thesis_grid(pos_n: int = 4, vel_n: int = 10, vint_n: int = 10) -> np.ndarray:
+    """Listing 7.4's grid of gains (or a coarser one over the same ranges).
+
+    Parameters
+    ----------
+    pos_n, vel_n, vint_n : int
+        Values of each gain (the listing's 4, 10, 10; the notebooks' smoke runs take 2, 4, 4).
 
     Returns
     -------
-    (400, 3) ndarray
-        pos_gain 20..50 (4 values) [(turn/s)/turn], vel_gain 0.002..0.18 (10) [N*m/(turn/s)],
-        vel_integrator_gain 0.002..0.08 (10) [N*m/turn], every combination.
+    (pos_n * vel_n * vint_n, 3) ndarray
+        pos_gain 20..50 [(turn/s)/turn], vel_gain 0.002..0.18 [N*m/(turn/s)],
+        vel_integrator_gain 0.002..0.08 [N*m/turn], every combination.
     """
-    pos = np.linspace(20, 50, 4)
-    vel = np.linspace(0.002, 0.18, 10)
-    vint = np.linspace(0.002, 0.08, 10)
+    for name, n in (("pos_n", pos_n), ("vel_n", vel_n), ("vint_n", vint_n)):
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+            raise ValueError(f"thesis_grid: {name} must be a positive integer, got {n!r}")
+    pos = np.linspace(20, 50, pos_n)
+    vel = np.linspace(0.002, 0.18, vel_n)
+    vint = np.linspace(0.002, 0.08, vint_n)
     return np.array([(p, v, i) for p in pos for v in vel for i in vint])
 
 
