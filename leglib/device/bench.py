@@ -57,6 +57,9 @@ REST_SETTLE, REST_WAIT, REST_TRANSACTIONS = 1.0, 0.25, 53
 #: the configuration read back and compared (setup.configure): 6 values on two axes and the
 #: board's brake resistor settings, the axes confirmed IDLE
 CONFIG_TRANSACTIONS = 23
+#: a save: every value written and read back, the save, the rebooted board found and every
+#: value read back again (beyond the comparison and the board's boot time)
+SAVE_TRANSACTIONS = 61
 #: the settle a step leaves the leg (step_response's default) [s]
 STEP_SETTLE = 2.0
 
@@ -109,10 +112,12 @@ def calibration_seconds(axes: int = 2, latency: float | None = None) -> float:
     return axes * (fw.CALIBRATION_DURATION + CALIBRATION_POLL / 2) + 2 * rest_seconds(latency)
 
 
-def reboot_seconds() -> float:
-    """Bench time of a save's reboot until the board answers again (the firmware model's
+def reboot_seconds(latency: float | None = None) -> float:
+    """Bench time of writing, saving and checking the configuration, the board's reboot
+    until it answers again included (the firmware model's
     :data:`leglib.device.virtual.firmware.BOOT_TIME`)."""
-    return float(_firmware().BOOT_TIME)
+    lat = usb_latency() if latency is None else latency
+    return float(_firmware().BOOT_TIME) + SAVE_TRANSACTIONS * lat
 
 
 def config_check_seconds(latency: float | None = None) -> float:
@@ -354,7 +359,7 @@ class Plan:
         lat = usb_latency() if latency is None else latency
         t = self.sessions * (config_check_seconds(lat) + rest_seconds(lat))
         if reboot:
-            t += reboot_seconds()
+            t += reboot_seconds(lat)
         if calibrate_axes:
             # the calibration measures the rest pose before and after: one of them replaces
             # the first session's check
