@@ -101,6 +101,19 @@ def _run(path, tmp_path, **params):
     return metrics
 
 
+def _check_rehearsal(m, exact: bool = False):
+    """The notebook's bench report: on a fresh twin it configures (one reboot) and calibrates
+    both axes once, however many sessions it opens; the estimate made before anything moved
+    is an upper bound of the rehearsed bench time (``exact``: the same within 2 %)."""
+    b = m["bench"]
+    assert b["backend"] == "virtual" and b["summary"].startswith("Rehearsal on the twin: on the leg this run would do")
+    assert b["counts"]["save"] == b["counts"]["reboot"] == 1 and b["counts"]["calibration"] == 2
+    assert b["planned_s"] >= 0.99 * b["bench_s"] > 0
+    if exact:
+        assert b["bench_s"] == pytest.approx(b["planned_s"], rel=0.02)
+    assert b["limit_s"] == 300.0
+
+
 @pytest.mark.notebook
 def test_01_derivation(tmp_path):
     m = _run(NOTEBOOKS[0], tmp_path)
@@ -155,6 +168,8 @@ def test_02_friction_fitting(processed):
     assert (tmp_path / "figures" / "02_listing77_peaks.png").exists()
     assert (tmp_path / "processed" / "friction_identified.json").exists()
     assert len(list((tmp_path / "raw").glob("*_torque.csv"))) == 1
+    _check_rehearsal(m, exact=True)
+    assert m["bench"]["counts"]["torque"] == 1 and m["bench"]["counts"]["step"] == 1   # the rig is not the leg
 
 
 @pytest.mark.notebook
@@ -176,6 +191,8 @@ def test_03_pole_placement(processed, tmp_path):
     assert runs["thesis design: playback"]["overshoot_pct"] > 3 * runs["identified: playback"]["overshoot_pct"]
     assert 400 < m["live_rate_hz"] < 600
     assert m["readout"].startswith("K = [")
+    _check_rehearsal(m)
+    assert m["bench"]["counts"]["torque"] == 4 and m["bench"]["counts"]["hold"] == 2
 
 
 @pytest.fixture(scope="module")
@@ -204,6 +221,8 @@ def test_04_pid_sweeps(sweep04):
         if row["true_zeta"] >= 0.2:
             assert row["thesis_zeta"] < 0.5 * row["true_zeta"]
     assert bias["target_as_true"]["zeta"] < 0.24 and bias["grid"]["points"] > 0
+    _check_rehearsal(m)
+    assert m["bench"]["counts"]["sweep"] == 1 and m["bench"]["counts"]["step"] == 32 + 2
 
 
 @pytest.mark.notebook
@@ -232,6 +251,8 @@ def test_05_validation(sweep04, tmp_path):
             assert tm["error_zeta"] < -0.1
     assert m["virtual_leg"]["achieved"]["k"] > 0
     assert m["summary"]["model"]["experiments"] < m["summary"]["map"]["experiments"]
+    _check_rehearsal(m)
+    assert "sweep" not in m["bench"]["counts"]             # 04's sweep was there
 
 
 @pytest.mark.notebook
