@@ -18,10 +18,11 @@ and the notebooks:
   device model, plus the transactions leglib's own code does around each experiment
   (counted on the twin, see the constants).
 - **The limit.** A :class:`Plan` of what a run will do gives its estimate before anything
-  moves; :func:`leglib.device.setup.start_run` (a notebook, ``python -m leglib design``) and :func:`require` (a
-  sweep, a design) refuse a run on the real leg whose estimate is longer than the limit
-  the caller gives (``max_bench_minutes``), with :class:`leglib.errors.BenchLimitError`
-  stating the estimate. On the twin nothing is refused: the estimate is reported.
+  moves; :func:`leglib.device.setup.start_run` (a notebook, ``python -m leglib design``)
+  and :func:`require` (a sweep, a design) refuse a run on the real leg whose estimate is
+  longer than the limit the caller gives (``max_bench_minutes``), with
+  :class:`leglib.errors.BenchLimitError` stating the estimate. On the twin nothing is
+  refused: the estimate is reported.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from dataclasses import dataclass, field
 
 from .. import checks
 from ..errors import ArgumentError, BenchLimitError
+from ..params import load_plant
 
 #: the limit a run on the leg gets unless the caller gives one [min]
 DEFAULT_MAX_BENCH_MINUTES = 5.0
@@ -67,7 +69,6 @@ STEP_SETTLE = 2.0
 def usb_latency() -> float:
     """Seconds per USB transaction: the device model's (the default plant's ``usb_latency``,
     from odrive_ros2_control#19's ~5 ms per axis read and write)."""
-    from ..params import load_plant  # load time: a parameter file, only when an estimate is made
     return float(load_plant("default").usb_latency)
 
 

@@ -121,11 +121,11 @@ class Configuration(dict):
     gone), ``text`` is what was said.
     """
 
-    differences: list
-    written: bool = False
-    saved: bool = False
-    rebooted: bool = False
-    text: str = ""
+    def __init__(self, values: dict):
+        super().__init__(values)
+        self.differences: list = []
+        self.written = self.saved = self.rebooted = False
+        self.text = ""
 
     def __str__(self) -> str:
         return self.text
@@ -133,10 +133,12 @@ class Configuration(dict):
 
 @dataclass
 class _Difference:
-    path: str
+    path: str            # the firmware's name, e.g. axis0.encoder.config.cpr
     have: object
     want: object
-    runtime: bool
+    runtime: bool        # one of RUNTIME_KEYS
+    axis: int | None = None
+    key: str = ""        # the logical name (an axis value) or the board's config field
 
     def __str__(self) -> str:
         return f"{self.path}: {_show(self.have)} -> {_show(self.want)}"
@@ -165,12 +167,13 @@ def _differences(dev: Device, wanted: dict) -> list[_Difference]:
         for key, value in wanted[f"axis{a}"].items():
             have = dev.get(a, key)
             if not _same(have, value):
-                out.append(_Difference(f"axis{a}.{'.'.join(dev._path(key))}", have, value, key in RUNTIME_KEYS))
+                out.append(_Difference(f"axis{a}.{'.'.join(dev._path(key))}", have, value, key in RUNTIME_KEYS,
+                                       a, key))
     for key in ("brake_resistance", "enable_brake_resistor"):
         if key in wanted:
             have = getattr(dev.raw.config, key)
             if not _same(have, wanted[key]):
-                out.append(_Difference(f"config.{key}", have, wanted[key], False))
+                out.append(_Difference(f"config.{key}", have, wanted[key], False, None, key))
     return out
 
 
@@ -313,11 +316,10 @@ def configure(dev: Device, config: OdriveConfig | None = None, save: bool = True
             result.text = f"configure: {found}: written, read back{what}"
         elif diffs:
             for d in diffs:
-                a, key = int(d.path[4]), next(k for k in RUNTIME_KEYS if d.path.endswith(".".join(dev._path(k))))
-                dev.set(a, key, d.want)
-                back = dev.get(a, key)
+                dev.set(d.axis, d.key, d.want)
+                back = dev.get(d.axis, d.key)
                 if not _same(back, d.want):
-                    raise ExperimentError(f"axis{a}.{key}: wrote {d.want}, device reports {back}")
+                    raise ExperimentError(f"{d.path}: wrote {d.want}, device reports {back}")
             result.written = True
             result.text = (f"configure: the board holds {name}'s configuration except the run-time "
                            f"{'; '.join(map(str, diffs))}: written for this session (every experiment sets it "
