@@ -124,6 +124,10 @@ def test_a_second_calibrate_on_a_ready_board_does_not_move_the_leg(requests, mon
     zero = d.axes.zero
     counts = (d.counts(0), d.counts(1))
     del requests[:]
+    d.close()
+    # the next session (another notebook): the same virtual board, its calibration kept for
+    # its life as a powered board keeps it
+    d = lg.connect("virtual", seed=23)
     moved = _excursion(monkeypatch, d)
     second = lg.calibrate(d)
     assert second.axes == () and second.zeroing == "kept" and "did not move" in second.text
