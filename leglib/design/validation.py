@@ -7,7 +7,12 @@ gains on the leg, identified; the relative errors. One routine for every consume
 - a step that is not a second-order step (the one classifier,
   :func:`leglib.design.points.identify_response`, says ``failed`` or ``unstable``) is *not
   identifiable*: its error is infinite, so a method's worst error says so, and it is
-  counted; it is never dropped, never given numbers.
+  counted; it is never dropped, never given numbers;
+- an identified check's error is an interval: its 90 % intervals of zeta and fn relative to
+  the target (:attr:`TargetResult.error_interval`). A target counts as reached within a
+  tolerance only when both intervals lie inside it (:func:`verdict`), and when an interval
+  is wider than the tolerance itself (the response's model error is larger than the
+  tolerance) the verdict says so instead of calling it reached or missed.
 """
 
 from __future__ import annotations
@@ -20,7 +25,32 @@ import numpy as np
 from .. import plots
 from ..errors import OutsideRegionError
 from ..experiments.step import step_response
+from ..device.session import as_device
 from .points import STATUS_OK, identify_response
+
+
+def verdict(zeta_interval, fn_interval, target, tolerance: float) -> tuple[bool, str]:
+    """Whether measured 90 % intervals of (zeta, fn [Hz]) put ``target`` (zeta, fn) reached
+    within ``tolerance`` (relative): True only when both intervals lie inside
+    target x (1 +- tolerance). Returns (reached, why) with why a sentence: reached; the
+    interval that reaches beyond the tolerance; or, when an interval's half-width is larger
+    than the tolerance itself, that the response's uncertainty (its model error included)
+    is larger than the tolerance, so reaching it cannot be told."""
+    wide, beyond = [], []
+    for name, (lo, hi), t in (("zeta", zeta_interval, target[0]), ("fn", fn_interval, target[1])):
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            return False, f"{name} has no interval (the check is not a second-order step)"
+        if (hi - lo) / 2 > tolerance * t:
+            wide.append(f"{name} to +-{(hi - lo) / 2 / t:.1%} of the target")
+        elif lo < t * (1 - tolerance) or hi > t * (1 + tolerance):
+            beyond.append(f"{name} [{lo:.3g}, {hi:.3g}] reaches beyond +-{tolerance:.1%} of {t:.3g}")
+    if wide:
+        return False, (f"the 90 % intervals hold {' and '.join(wide)}, more than the tolerance "
+                       f"(+-{tolerance:.1%}): the model error of this response is larger than the tolerance, so "
+                       f"whether the target is reached cannot be told")
+    if beyond:
+        return False, f"not reached: {'; '.join(beyond)} (90 % interval)"
+    return True, f"reached: both 90 % intervals lie within +-{tolerance:.1%} of the target"
 
 
 @dataclass
@@ -61,6 +91,32 @@ class TargetResult:
             return (math.inf, math.inf)
         return (self.measured.zeta / self.target[0] - 1.0, self.measured.fn / self.target[1] - 1.0)
 
+    @property
+    def error_interval(self) -> tuple[tuple, tuple]:
+        """The 90 % intervals of the relative errors ((zeta low, high), (fn low, high)): the
+        check's intervals relative to the target (NaN where :attr:`error` is not finite)."""
+        if not self.identified:
+            nan = (math.nan, math.nan)
+            return (nan, nan)
+        return tuple(tuple(b / t - 1.0 for b in iv) for iv, t in
+                     ((self.measured.zeta_interval, self.target[0]), (self.measured.fn_interval, self.target[1])))
+
+    @property
+    def worst_bound(self) -> float:
+        """The largest |relative error| the intervals allow (inf when not identifiable, NaN
+        outside)."""
+        if self.outside or self.measured is None:
+            return math.nan
+        if not self.identified:
+            return math.inf
+        return float(max(abs(b) for iv in self.error_interval for b in iv))
+
+    def reached(self, tolerance: float) -> tuple[bool, str]:
+        """:func:`verdict` of the check against the target within ``tolerance``."""
+        if not self.identified:
+            return False, "the check is not a second-order step" if self.measured is not None else "no check"
+        return verdict(self.measured.zeta_interval, self.measured.fn_interval, self.target, tolerance)
+
 
 @dataclass
 class Validation:
@@ -90,21 +146,26 @@ class Validation:
         return self.setup_experiments + sum(r.experiments for r in self.rows)
 
     def summary(self) -> dict:
-        """Median and worst absolute relative errors (of zeta, of fn, of both), the targets
-        answered, outside and not identifiable, the experiments."""
+        """Median and worst absolute relative errors (of zeta, of fn, of both), the largest
+        error any check's 90 % interval allows (``worst_bound``), each answered target's error
+        intervals (``error_intervals``, in the rows' order), the targets answered, outside and
+        not identifiable, the experiments."""
         e = np.abs(self.errors)
         stat = (lambda f, x: float(f(x)) if x.size else math.nan)
+        answered = [r for r in self.rows if not r.outside]
+        bounds = np.array([r.worst_bound for r in answered], float)
         return {"median_zeta": stat(np.median, e[:, 0]), "median_fn": stat(np.median, e[:, 1]),
                 "worst_zeta": stat(np.max, e[:, 0]), "worst_fn": stat(np.max, e[:, 1]),
-                "median": stat(np.median, e), "worst": stat(np.max, e),
+                "median": stat(np.median, e), "worst": stat(np.max, e), "worst_bound": stat(np.max, bounds),
+                "error_intervals": [[list(iv) for iv in r.error_interval] for r in answered],
                 "targets": len(e), "outside_region": sum(r.outside for r in self.rows),
                 "unidentified": sum((not r.outside) and not r.identified for r in self.rows),
                 "experiments": self.experiments}
 
     def markdown(self) -> str:
         """The table of targets and the summary, as Markdown."""
-        lines = [f"**{self.method}**", "", "| # | target (ζ, fn [Hz]) | predicted | measured | error ζ, fn | steps |",
-                 "|---|---|---|---|---|---|"]
+        lines = [f"**{self.method}**", "", "| # | target (ζ, fn [Hz]) | predicted | measured [90 % interval] | "
+                 "error ζ, fn [90 % interval] | steps |", "|---|---|---|---|---|---|"]
         for k, r in enumerate(self.rows, 1):
             tgt = f"({r.target[0]:.3f}, {r.target[1]:.2f})"
             pred = f"({r.predicted[0]:.3f}, {r.predicted[1]:.2f})" if r.predicted else "–"
@@ -113,14 +174,18 @@ class Validation:
                 lines.append(f"| {k} | {tgt} | outside the region{near} | – | – | {r.experiments} |")
                 continue
             if r.identified:
-                meas = f"({r.measured.zeta:.3f}, {r.measured.fn:.2f})"
-                err = f"{r.error[0]:+.1%}, {r.error[1]:+.1%}"
+                (zl, zh), (fl, fh) = r.measured.zeta_interval, r.measured.fn_interval
+                (ezl, ezh), (efl, efh) = r.error_interval
+                meas = f"ζ {r.measured.zeta:.3f} [{zl:.3f}, {zh:.3f}], fn {r.measured.fn:.2f} [{fl:.2f}, {fh:.2f}]"
+                err = (f"{r.error[0]:+.1%} [{ezl:+.1%}, {ezh:+.1%}], "
+                       f"{r.error[1]:+.1%} [{efl:+.1%}, {efh:+.1%}]")
             else:
                 meas = f"not identifiable: {r.measured.reason or r.measured.status}"
                 err = "∞"
             lines.append(f"| {k} | {tgt} | {pred} | {meas} | {err} | {r.experiments} |")
         s = self.summary()
-        lines += ["", f"Median error {s['median']:.1%}, worst {s['worst']:.1%} over {s['targets']} targets "
+        lines += ["", f"Median error {s['median']:.1%}, worst {s['worst']:.1%} (their 90 % intervals allow up to "
+                      f"{s['worst_bound']:.1%}) over {s['targets']} targets "
                       f"({s['unidentified']} not identifiable, {s['outside_region']} outside the region); "
                       f"{s['experiments']} experiments."]
         return "\n".join(lines)
@@ -158,6 +223,7 @@ def validate(odrv, targets, gains_of, method: str, setup_experiments: int = 0, s
     Validation
     """
     result = Validation(method, setup_experiments=int(setup_experiments))
+    dev = as_device(odrv)
     for tgt in targets:
         tgt = (float(tgt[0]), float(tgt[1]))
         try:
@@ -166,7 +232,7 @@ def validate(odrv, targets, gains_of, method: str, setup_experiments: int = 0, s
             result.rows.append(TargetResult(tgt, outside=True, nearest=(exc.nearest.zeta, exc.nearest.fn),
                                             note="outside the region"))
             continue
-        point = identify_response(step_response(odrv, *gains, **(step_kwargs or {})))
+        point = identify_response(step_response(dev, *gains, **(step_kwargs or {})), dev.leg)
         result.rows.append(TargetResult(tgt, tuple(float(g) for g in gains),
                                         None if predicted is None else tuple(map(float, predicted)), point,
                                         int(spent) + 1, note=note))

@@ -53,7 +53,7 @@ def test_design_reaches_targets_on_a_leg_its_model_does_not_know(loaded_dev, tar
     assert d.experiments[-1].gains == d.gains            # the final check is the last step
     assert all(abs(e) <= d.tolerance for e in d.error)
     # measured is what the final check identified, independently re-identified here
-    p = identify_response(d.experiments[-1].response)
+    p = identify_response(d.experiments[-1].response, loaded_dev.leg)
     assert (p.zeta, p.fn) == pytest.approx(d.measured)
     assert np.all(np.isfinite(d.predicted))
     # the final check's standard errors: the twin's step is not exactly second order (gravity,

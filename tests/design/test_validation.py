@@ -26,7 +26,7 @@ def dev():
 
 
 def test_a_known_answer_outside_and_unidentifiable_targets(dev):
-    p = identify_response(lg.step_response(dev, *STABLE))
+    p = identify_response(lg.step_response(dev, *STABLE), dev.leg)
     reachable = (p.zeta, p.fn)
     far = (3.0, 40.0)
     fails = (0.1, 2.0)
