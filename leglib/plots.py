@@ -6,6 +6,7 @@ import base64
 import io
 import re
 import tempfile
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -321,7 +322,6 @@ def plot_thesis_peaks(t, reading, ax=None):
 
 
 def _wrap(text: str, width: int) -> list[str]:
-    import textwrap
     return textwrap.wrap(text, width)
 
 

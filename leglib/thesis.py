@@ -26,13 +26,15 @@ from scipy.optimize import brentq
 
 from . import model as M
 from .design.points import identify_many
+from .design.tuning import AxisModel
 from .errors import IdentificationError
 from .experiments.step import StepResponse
 from .files.sweepdir import read_measurements
 from .identify.fastfit import model
 from .identify.listing77 import ThesisReading
 from .identify.step import second_order
-from .params import LegParams, load_leg
+from .model.cascade import motor_side_inertia
+from .params import SHIPPED_DIR, LegParams, load_leg, load_odrive_config
 
 # ---------------------------------------------------------------------------------------
 # the thesis's targets and results, in the thesis's measure (Listing 7.7)
@@ -304,6 +306,48 @@ def listing_reach(rows: list[dict]) -> dict:
             "max_first_peak_deg": float(max(r["first_peak_deg"] for r in ok)),
             "min_true_zeta": float(min(r["zeta"] for r in ok)),
             "thesis_result_zeta": THESIS_RESULT[0]}
+
+
+def is_thesis_leg(leg: LegParams) -> bool:
+    """True when ``leg`` holds the values of the shipped ``leg_thesis.toml`` (the parameter set
+    built to reproduce eq. 5.11), wherever it was loaded from: eq. 5.11 is that leg's
+    linearization and no other's."""
+    ref = load_leg(SHIPPED_DIR / "leg_thesis.toml")
+    return all(getattr(leg, f) == getattr(ref, f) for f in vars(ref) if not f.startswith("_") and f != "source_file")
+
+
+def chapter5_mismatch(leg: LegParams, gains=FIG_6_9_GAINS, viscous: float | None = None) -> dict:
+    """The chapter-5/6 mismatch in numbers: the damping chapter 5 identified against the
+    damping chapter 6's response shows.
+
+    The model: one cascade axis (:class:`leglib.design.tuning.AxisModel`: position P,
+    velocity PI, current loop and encoder PLL of Listing 7.1's ODrive) on ``leg``'s
+    opening-mode inertia at rest, with the joint's viscous damping ``viscous``
+    [N*m*s/rad] (default ``leg.c11``, chapter 5's 0.098 on the thesis's leg) seen at the
+    motor (viscous 2 pi / gear^2 per turn/s), stepped with ``gains`` (Fig. 6.9's by default)
+    and identified on the foot height. The measurement: the thesis's validated reading
+    (:data:`THESIS_RESULT`, Listing 7.7's measure) as the ideal step that reads so
+    (:func:`true_from_reading`).
+
+    Returns
+    -------
+    dict: ``gains``, ``viscous`` [N*m*s/rad], ``step_deg`` (the step's joint swing [deg]), ``model`` {``zeta``, ``fn`` [Hz]} (NaN when the
+    model's step is no second-order step), ``thesis_result`` {``zeta``, ``f_hz``} (Listing
+    7.7), ``thesis_result_as_true`` {``zeta``, ``fd``, ``fn``} (true measure)
+    """
+    cfg = load_odrive_config("thesis")
+    c = leg.c11 if viscous is None else float(viscous)
+    D = M.mass_matrix(leg, *leg.q0)
+    model = AxisModel(J=motor_side_inertia(float(D[0, 0] - D[0, 1]), leg.gear_ratio),
+                      b=c * 2 * math.pi / leg.gear_ratio ** 2, torque_constant=cfg.torque_constant,
+                      current_bandwidth=cfg.current_control_bandwidth, encoder_bandwidth=cfg.encoder_bandwidth,
+                      leg=leg)
+    zeta, fn = model.predict(tuple(gains))
+    true = true_from_reading(*THESIS_RESULT)
+    return {"gains": [float(g) for g in gains], "viscous": c, "step_deg": STEP_DEG,
+            "model": {"zeta": float(zeta), "fn": float(fn)},
+            "thesis_result": {"zeta": THESIS_RESULT[0], "f_hz": THESIS_RESULT[1]},
+            "thesis_result_as_true": {"zeta": true["zeta"], "fd": true["fd"], "fn": true["fn"]}}
 
 
 # ---------------------------------------------------------------------------------------
