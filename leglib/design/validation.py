@@ -23,9 +23,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import plots
+from ..device.session import as_device
 from ..errors import OutsideRegionError
 from ..experiments.step import step_response
-from ..device.session import as_device
 from .points import STATUS_OK, identify_response
 
 

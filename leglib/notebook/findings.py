@@ -15,7 +15,6 @@ import re
 from pathlib import Path
 
 
-
 def read_metrics(path) -> dict:
     """A notebook's metrics JSON (the file :func:`leglib.notebook.setup.write_metrics` wrote)."""
     p = Path(path)
@@ -139,7 +138,7 @@ def sweeps(m: dict) -> str:
     c = m["counts"]
     out = [f"- {m['points']} steps: {c.get('ok', 0)} second-order steps, {c.get('unstable', 0)} unstable, "
            f"{c.get('failed', 0)} failed (not second-order steps, each with its reason; "
-           f"{m['failed_not_reaching']} of them do not reach their commanded final value)."]
+           f"{m['failed_not_reaching']} of them end more than half the step short of their commanded final value)."]
     if m["achievable"]:
         out.append(f"- Achievable: zeta {m['zeta_range'][0]:.2f} to {m['zeta_range'][1]:.2f}, fn "
                    f"{m['fn_range'][0]:.2f} to {m['fn_range'][1]:.2f} Hz ({m['achievable']} fine-grid points).")
@@ -147,7 +146,7 @@ def sweeps(m: dict) -> str:
         out.append("- The map has no achievable region: no grid cell has all its corners identified.")
     t = m["thesis_target_nearest"]
     if t:
-        out.append(f"- The thesis's numbers (0.24, 5 Hz) taken as true zeta and fn are "
+        out.append(f"- The thesis's numbers ({t['target'][0]:.2f}, {t['target'][1]:g} Hz) taken as true zeta and fn are "
                    f"{'inside' if t['inside'] else 'outside'} this region; the map's nearest point: zeta "
                    f"{t['zeta']:.3f} {_iv(t['zeta_interval'], 3)}, fn {t['fn']:.2f} {_iv(t['fn_interval'], 2)} Hz "
                    f"(90 % intervals).")
@@ -196,7 +195,7 @@ def validation(m: dict) -> str:
         out.append("- **In the thesis's own measure** Listing 7.7 reads no swept point of the twin: it fails on "
                    "every one.")
     t = m["thesis_target"]
-    out.append(f"- Taken as true zeta and fn, the thesis's target (0.24, 5 Hz) is "
+    out.append(f"- Taken as true zeta and fn, the thesis's target ({t['target'][0]:.2f}, {t['target'][1]:g} Hz) is "
                f"{'inside' if t['inside_region'] else 'outside'} the map's achievable region; the map's gains give "
                f"zeta {t['zeta']:.3f} {_iv(t['zeta_interval'], 3)}, fn {t['fn']:.2f} {_iv(t['fn_interval'], 2)} Hz "
                f"(90 % intervals), {_pct(t['error_zeta'])} and {_pct(t['error_fn'])} from the target; "
