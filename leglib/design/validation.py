@@ -128,11 +128,14 @@ class Validation:
     rows : list of :class:`TargetResult`, one per target
     setup_experiments : steps spent before any target (a sweep for the map, the fitting steps
         of a model)
+    tolerance : the relative tolerance a target counts as reached within (:func:`verdict`,
+        the check's 90 % intervals inside it), or None: no verdicts
     """
 
     method: str
     rows: list = field(default_factory=list)
     setup_experiments: int = 0
+    tolerance: float | None = None
 
     @property
     def errors(self) -> np.ndarray:
@@ -154,24 +157,32 @@ class Validation:
         stat = (lambda f, x: float(f(x)) if x.size else math.nan)
         answered = [r for r in self.rows if not r.outside]
         bounds = np.array([r.worst_bound for r in answered], float)
-        return {"median_zeta": stat(np.median, e[:, 0]), "median_fn": stat(np.median, e[:, 1]),
-                "worst_zeta": stat(np.max, e[:, 0]), "worst_fn": stat(np.max, e[:, 1]),
-                "median": stat(np.median, e), "worst": stat(np.max, e), "worst_bound": stat(np.max, bounds),
-                "error_intervals": [[list(iv) for iv in r.error_interval] for r in answered],
-                "targets": len(e), "outside_region": sum(r.outside for r in self.rows),
-                "unidentified": sum((not r.outside) and not r.identified for r in self.rows),
-                "experiments": self.experiments}
+        out = {"median_zeta": stat(np.median, e[:, 0]), "median_fn": stat(np.median, e[:, 1]),
+               "worst_zeta": stat(np.max, e[:, 0]), "worst_fn": stat(np.max, e[:, 1]),
+               "median": stat(np.median, e), "worst": stat(np.max, e), "worst_bound": stat(np.max, bounds),
+               "error_intervals": [[list(iv) for iv in r.error_interval] for r in answered],
+               "targets": len(e), "outside_region": sum(r.outside for r in self.rows),
+               "unidentified": sum((not r.outside) and not r.identified for r in self.rows),
+               "experiments": self.experiments}
+        if self.tolerance is not None:
+            verdicts = [r.reached(self.tolerance) for r in answered]
+            out.update(tolerance=self.tolerance, reached=sum(ok for ok, _ in verdicts),
+                       undecided=sum("cannot be told" in why for _, why in verdicts))
+        return out
 
     def markdown(self) -> str:
         """The table of targets and the summary, as Markdown."""
+        tol = self.tolerance
         lines = [f"**{self.method}**", "", "| # | target (ζ, fn [Hz]) | predicted | measured [90 % interval] | "
-                 "error ζ, fn [90 % interval] | steps |", "|---|---|---|---|---|---|"]
+                 "error ζ, fn [90 % interval] | steps |" + (f" within ±{tol:.0%}? |" if tol is not None else ""),
+                 "|---|---|---|---|---|---|" + ("---|" if tol is not None else "")]
         for k, r in enumerate(self.rows, 1):
             tgt = f"({r.target[0]:.3f}, {r.target[1]:.2f})"
             pred = f"({r.predicted[0]:.3f}, {r.predicted[1]:.2f})" if r.predicted else "–"
             if r.outside:
                 near = f" (nearest {r.nearest[0]:.3f}, {r.nearest[1]:.2f} Hz)" if r.nearest else ""
-                lines.append(f"| {k} | {tgt} | outside the region{near} | – | – | {r.experiments} |")
+                lines.append(f"| {k} | {tgt} | outside the region{near} | – | – | {r.experiments} |"
+                             + (" – |" if tol is not None else ""))
                 continue
             if r.identified:
                 (zl, zh), (fl, fh) = r.measured.zeta_interval, r.measured.fn_interval
@@ -182,12 +193,18 @@ class Validation:
             else:
                 meas = f"not identifiable: {r.measured.reason or r.measured.status}"
                 err = "∞"
-            lines.append(f"| {k} | {tgt} | {pred} | {meas} | {err} | {r.experiments} |")
+            cell = ""
+            if tol is not None:
+                ok, why = r.reached(tol)
+                cell = " yes |" if ok else (" cannot be told (intervals wider) |" if "cannot be told" in why else " no |")
+            lines.append(f"| {k} | {tgt} | {pred} | {meas} | {err} | {r.experiments} |{cell}")
         s = self.summary()
         lines += ["", f"Median error {s['median']:.1%}, worst {s['worst']:.1%} (their 90 % intervals allow up to "
                       f"{s['worst_bound']:.1%}) over {s['targets']} targets "
                       f"({s['unidentified']} not identifiable, {s['outside_region']} outside the region); "
-                      f"{s['experiments']} experiments."]
+                      f"{s['experiments']} experiments."
+                      + (f" {s['reached']} reached within ±{tol:.0%} by their 90 % intervals, {s['undecided']} with "
+                         f"intervals wider than that." if tol is not None else "")]
         return "\n".join(lines)
 
     def _repr_markdown_(self) -> str:
@@ -198,7 +215,8 @@ class Validation:
         return plots.plot_validation(self, ax=ax)
 
 
-def validate(odrv, targets, gains_of, method: str, setup_experiments: int = 0, step_kwargs=None) -> Validation:
+def validate(odrv, targets, gains_of, method: str, setup_experiments: int = 0, step_kwargs=None,
+             tolerance: float | None = None) -> Validation:
     """Validate a method on the leg: for each target the method's gains, one step, its
     classification.
 
@@ -217,12 +235,15 @@ def validate(odrv, targets, gains_of, method: str, setup_experiments: int = 0, s
         Steps the method spent before any target.
     step_kwargs : dict, optional
         Passed to :func:`leglib.experiments.step.step_response` for the check steps.
+    tolerance : float, optional
+        Relative tolerance within which a target counts as reached (only when its check's
+        90 % intervals lie inside it, :func:`verdict`); None gives errors without verdicts.
 
     Returns
     -------
     Validation
     """
-    result = Validation(method, setup_experiments=int(setup_experiments))
+    result = Validation(method, setup_experiments=int(setup_experiments), tolerance=tolerance)
     dev = as_device(odrv)
     for tgt in targets:
         tgt = (float(tgt[0]), float(tgt[1]))

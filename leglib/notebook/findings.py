@@ -201,9 +201,11 @@ def validation(m: dict) -> str:
                f"(90 % intervals), {_pct(t['error_zeta'])} and {_pct(t['error_fn'])} from the target; "
                f"{t['verdict']} (tolerance {_pct(t['tolerance'], 0, False)}).")
     for method, v in m["summary"].items():
+        reached = (f"; {v['reached']} reached within {_pct(v['tolerance'], 0, False)} by their intervals, "
+                   f"{v['undecided']} with intervals wider than that" if "reached" in v else "")
         out.append(f"- {method}: median error {_pct(v['median'], sign=False)}, worst {_pct(v['worst'], sign=False)} "
                    f"(the 90 % intervals allow up to {_pct(v['worst_bound'], sign=False)}) over {v['targets']} "
-                   f"targets, {v['unidentified']} not identifiable, {v['experiments']} experiments.")
+                   f"targets, {v['unidentified']} not identifiable, {v['experiments']} experiments{reached}.")
     outside = m["summary"]["map"]["outside_region"] if "map" in m["summary"] else 0
     if outside:
         out.append(f"- {outside} target(s) outside the map's region: the map has no answer there.")
