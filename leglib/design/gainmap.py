@@ -296,9 +296,10 @@ class GainMap:
             sides = []
             for k in (0, 1):
                 # log of value / low and of high / value; a low end clipped at zero counts as
-                # a factor of 1000 (the interval reaches zero)
+                # a factor of 10 (the interval reaches far down: more would only let one
+                # ill-defined neighbour swamp the interpolation)
                 with np.errstate(divide="ignore", invalid="ignore"):
-                    r = np.abs(np.log(np.where(known, np.maximum(iv[..., k], est * 1e-3), 1.0) / est))
+                    r = np.abs(np.log(np.where(known, np.maximum(iv[..., k], est * 0.1), 1.0) / est))
                 r = np.where(known & np.isfinite(r), r, 0.0)
                 filled = harmonic_fill(r, known) if known.any() else r
                 sides.append(np.sqrt(np.maximum(interp(filled, "linear").reshape(full), 0.0) ** 2 + extra))

@@ -181,14 +181,17 @@ def test_offered_points_agree_when_remeasured(thesis_map):
     requests = [(2.0, 3.0), (1.5, 4.0), (0.3, 2.5), (0.24, 5.0)]
     requests += [(a.zeta[i], a.fn[i]) for i in edges]
     requests += [tuple(x) for x in spread_targets(a, 12, margin=0.0, seed=2)]
-    errors = []
+    errors, held = [], []
     for z, f in requests:
         c = gm.nearest(z, f)
         p = identify_response(lg.step_response(odrv, *c.gains), odrv.leg)
         assert p.status == "ok", (z, f, c, p.reason)
         errors.append(max(abs(p.zeta / c.zeta - 1), abs(p.fn / c.fn - 1)))
+        held.append(c.zeta_interval[0] <= p.zeta <= c.zeta_interval[1] and c.fn_interval[0] <= p.fn <= c.fn_interval[1])
     errors = np.array(errors)
     assert np.median(errors) < 0.05 and errors.max() < 0.15, errors
+    # the map's 90 % intervals (its neighbours' interpolated) hold what is measured again
+    assert np.mean(held) >= 0.8, held
 
 
 def test_a_target_outside_the_region_is_refused_with_the_nearest_point(thesis_map):
