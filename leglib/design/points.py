@@ -122,11 +122,12 @@ def commanded_height(resp, leg) -> float:
 
 
 def _count_height(leg, q1, q2) -> float:
-    """Foot height change [m] of one encoder count on each joint at (q1, q2)."""
+    """Foot height change [m] of one encoder count on each joint at (q1, q2), bounded by twice
+    the larger of the two joints' (each joint reads to within one count)."""
     dq = 2 * math.pi / (leg.encoder_cpr * leg.gear_ratio)
     _, y0 = foot_position(leg, q1, q2)
-    return float(max(abs(foot_position(leg, q1 + dq, q2)[1] - y0), abs(foot_position(leg, q1, q2 + dq)[1] - y0))
-                 * 2)
+    one = max(abs(foot_position(leg, q1 + dq, q2)[1] - y0), abs(foot_position(leg, q1, q2 + dq)[1] - y0))
+    return float(2 * one)
 
 
 def _gravity_share(resp, leg) -> tuple[float, float]:
@@ -147,7 +148,7 @@ def reach_problem(resp, leg, final: float | None = None) -> str | None:
     The response's final value (the mean of its last fifth, as
     :func:`leglib.identify.fastfit.shape_numbers`) must lie within
 
-        band = :data:`REACH_FRACTION` x |commanded step| + one encoder count at the foot
+        band = :data:`REACH_FRACTION` x |commanded step| + one encoder count on each joint, at the foot
 
     of the foot height the step commands (:func:`commanded_height`).
 
