@@ -66,6 +66,7 @@ from .fastfit import (
     _pack,
     _shapes,
     model,
+    refit_from,
 )
 from .listing77 import MAX_SAMPLES, _series, _thesis_reading
 
@@ -297,7 +298,8 @@ class FitIntervals:
     ``se`` the residual-corrected standard error (:func:`standard_errors`), z the normal
     quantile of ``level`` (1.645 for 90 %), and ``model_error`` m the largest change of the
     value when the same model is fitted to the leading 1/2, 2/3 and 5/6 of the record
-    (:data:`WINDOWS`). A response the second-order model describes exactly gives the same
+    (:data:`WINDOWS`), each fit started from the whole record's (the same minimum, moved by
+    what the window leaves out: :func:`leglib.identify.fastfit.refit_from`). A response the second-order model describes exactly gives the same
     numbers from every window, so m measures how much the numbers depend on which part of
     an approximate response is fitted (the slow integrator mode, friction's stick near
     rest), a model error the noise term does not hold. m is infinite when no window
@@ -357,18 +359,25 @@ def _window_parts(t, y):
     return [(t[:int(f * n)], y[:int(f * n)]) for f in WINDOWS if int(f * n) >= 20]
 
 
+def _window_values(params) -> dict:
+    """{"zeta", "fn", "fd"} of a refit's parameter row (NaN row: no values)."""
+    zeta, wn = float(params[0]), float(params[1])
+    fn = wn / (2 * math.pi)
+    return {"zeta": zeta, "fn": fn, "fd": fn * math.sqrt(1 - zeta ** 2) if zeta < 1 else math.nan}
+
+
 def _make_intervals(fit: "SecondOrderFit", se: dict, windows, level: float) -> FitIntervals:
     """:class:`FitIntervals` of ``fit`` from its standard errors ``se`` and its window refits
-    (SecondOrderFit or IdentificationError each)."""
+    (parameter rows of :func:`leglib.identify.fastfit.refit_from`, NaN for a failed one)."""
     z = _normal_quantile(level)
-    good = [w for w in windows if isinstance(w, SecondOrderFit)]
+    good = [_window_values(w) for w in windows if np.isfinite(w[0])]
     m = {}
     for name in ("zeta", "fn", "fd"):
         v = getattr(fit, name)
         if not math.isfinite(v):
             m[name] = math.nan
             continue
-        d = [abs(getattr(w, name) - v) for w in good]
+        d = [abs(w[name] - v) for w in good]
         # a window whose fit has no fd (zeta >= 1 there) says fd is not defined that well
         m[name] = max((x if math.isfinite(x) else v for x in d), default=math.inf)
     return FitIntervals(level, _interval(fit.zeta, se["zeta"], m["zeta"], z),
@@ -380,9 +389,14 @@ def fit_intervals(fit: "SecondOrderFit", t, y, level: float = LEVEL) -> FitInter
     """The :class:`FitIntervals` (zeta, fn [Hz], fd [Hz]) of a second-order ``fit`` of
     (``t`` [s], ``y``); also stored as ``fit.intervals``."""
     t, y = _series(t, y, 20)
-    windows = identify_batch([w[0] for w in _window_parts(t, y)], [w[1] for w in _window_parts(t, y)])
+    parts = _window_parts(t, y)
+    windows = refit_from([w[0] for w in parts], [w[1] for w in parts], [_params(fit)] * len(parts))
     fit.intervals = _make_intervals(fit, standard_errors(fit, t, y), windows, level)
     return fit.intervals
+
+
+def _params(fit: "SecondOrderFit") -> list:
+    return [fit.zeta, fit.wn, fit.gain, fit.offset, fit.delay]
 
 
 def _error(code, row):
@@ -473,7 +487,8 @@ def add_intervals(results, ts, ys, level: float = LEVEL) -> None:
     done = [k for k, f in enumerate(results) if isinstance(f, SecondOrderFit)]
     parts = {k: _window_parts(np.asarray(ts[k], float), np.asarray(ys[k], float)) for k in done}
     flat = [w for k in done for w in parts[k]]
-    refits = iter(identify_batch([w[0] for w in flat], [w[1] for w in flat]) if flat else [])
+    starts = [_params(results[k]) for k in done for _ in parts[k]]
+    refits = iter(refit_from([w[0] for w in flat], [w[1] for w in flat], starts) if flat else [])
     for k in done:
         windows = [next(refits) for _ in parts[k]]
         results[k].intervals = _make_intervals(results[k], standard_errors(results[k], ts[k], ys[k]), windows,
