@@ -188,7 +188,7 @@ def plot_step_identification(t, y, fit, ax=None):
     lines = ax.plot(t, y * 1e3, "r-", label="measured")
     iv = getattr(fit, "intervals", None)
     if iv is not None:
-        label = (f"{fit.method}: zeta={iv.text('zeta', fit.zeta, 3)}, fn={iv.text('fn', fit.fn, 2)} Hz "
+        label = (f"{fit.method}: zeta={iv.text('zeta', fit.zeta)}, fn={iv.text('fn', fit.fn)} Hz "
                  f"(90 %), R^2={fit.r2:.3f}")
     else:
         label = f"{fit.method}: zeta={fit.zeta:.3f}, fn={fit.fn:.2f} Hz, fd={fit.fd:.2f} Hz, R^2={fit.r2:.3f}"

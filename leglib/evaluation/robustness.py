@@ -56,6 +56,7 @@ from ..experiments.sweep import thesis_grid
 from ..experiments.torque import friction_experiment, play_torque_table
 from ..params import load_plant, plant_names
 from ..twin.host import Twin
+from ..units import dynamics_text
 
 THESIS_TARGET = (0.24, 5.0)
 #: gains at which the further targets are measured on each leg (moderate, stable)
@@ -450,8 +451,7 @@ def design_study_markdown(rows) -> str:
             lines.append(head + f"— | {r.failure.replace('|', '/')} | 0 |")
             continue
         d = r.design
-        (zl, zh), (fl, fh) = d.intervals
-        lines.append(head + f"ζ {d.measured[0]:.3f} [{zl:.3f}, {zh:.3f}], fn {d.measured[1]:.2f} [{fl:.2f}, {fh:.2f}] | "
+        lines.append(head + dynamics_text(*d.measured, *d.intervals, zeta_name="ζ") + " | "
                      f"{d.error[0]:+.1%}, {d.error[1]:+.1%} | {r.experiments}{'' if d.reached else ' (not reached)'} |")
     summary = design_summary(rows)
     lines += ["", "| plant, payload | median error | worst error | most experiments | reached |", "|---|---|---|---|---|"]
