@@ -224,8 +224,8 @@ def require_readable_file(name: str, value: Any) -> Path:
 
 def write_metrics(path: str | Path, **metrics) -> Path:
     """The small metrics JSON every notebook writes (tests assert on it), with
-    ``figure_text_overlaps``: the figures this process saved whose texts overlap
-    (:data:`FIGURE_OVERLAPS`, empty when every figure reads)."""
+    ``figure_text_overlaps``: the figures this process saved whose texts overlap or whose
+    legends sit on data (:data:`FIGURE_OVERLAPS`, empty when every figure reads)."""
     metrics.setdefault("figure_text_overlaps", {k: v for k, v in FIGURE_OVERLAPS.items() if v})
     return write_json_atomic(path, metrics)
 
@@ -238,7 +238,8 @@ def add_metrics(path: str | Path, **metrics) -> Path:
 
 
 class FigureLayoutWarning(UserWarning):
-    """A saved figure has texts that overlap (:func:`leglib.plots.text_overlaps`)."""
+    """A saved figure has texts that overlap (:func:`leglib.plots.text_overlaps`) or a legend
+    on data (:func:`leglib.plots.legends_on_data`)."""
 
 
 # figure name -> its overlapping texts, for every figure save_figure wrote in this process
@@ -247,12 +248,15 @@ FIGURE_OVERLAPS: dict[str, list[str]] = {}
 
 def save_figure(fig, figures_dir: str | Path, name: str) -> Path:
     """Save ``fig`` as ``<figures_dir>/<name>.png`` (whole or not at all; a full disk names
-    the file) and return the path. Its texts are checked for overlaps first: any found are
-    a :class:`FigureLayoutWarning` and go into the notebook's metrics (:func:`write_metrics`)."""
-    overlaps = plots.text_overlaps(fig)
+    the file) and return the path. A legend that covers data is moved off it first
+    (:func:`leglib.plots.keep_legends_off_data`); then the texts are checked for overlaps and
+    the legends for data they still cover: any found are a :class:`FigureLayoutWarning` and
+    go into the notebook's metrics (:func:`write_metrics`)."""
+    plots.keep_legends_off_data(fig)
+    overlaps = plots.text_overlaps(fig) + plots.legends_on_data(fig)
     FIGURE_OVERLAPS[name] = overlaps
     if overlaps:
-        warnings.warn(f"figure {name}: {len(overlaps)} overlapping text(s): " + "; ".join(overlaps[:4])
+        warnings.warn(f"figure {name}: {len(overlaps)} overlapping text(s) or legend(s) on data: " + "; ".join(overlaps[:4])
                       + (" ..." if len(overlaps) > 4 else ""), FigureLayoutWarning, stacklevel=2)
     out = Path(figures_dir)
     out.mkdir(parents=True, exist_ok=True)

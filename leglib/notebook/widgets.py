@@ -244,7 +244,8 @@ def pole_placement_panel(sys, center: float = -7.0, spread: float = 0.007, obser
         a3.set_xlabel("t [s]")
         a3.set_ylabel("joint torque deviation [N m]")
         a3.set_title("torques against the limit")
-        a3.legend(fontsize=7)
+        # beside the panel: inside, the torques and both limits leave no place it would not cover
+        a3.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
         view.show()
 
     for s in (s_center, s_spread, s_obs, s_zeta, t_poles):
