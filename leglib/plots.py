@@ -227,23 +227,33 @@ def clipped_texts(fig, tolerance_px: float = 1.0) -> list[str]:
 
 
 def fit_title(ax, title: str, fontsize: float | None = None):
-    """Set ``title`` on ``ax`` so that it fits the figure's width: wrapped onto two lines and
-    then smaller as needed (a title longer than a small figure, an animation's, was cut at
+    """Set ``title`` on ``ax`` so that it fits its figure drawn at its own size: wrapped onto
+    two lines when it is wider than the figure, then smaller if it still is; the axes moved
+    down when it runs past the top (a long title on an animation's small figure was cut at
     both ends)."""
     fig = ax.figure
     size = fontsize or ax.title.get_fontsize()
     text = title
-    for _ in range(8):
-        t = ax.set_title(text, fontsize=size)
-        if not clipped_texts(fig):
-            return t
-        if "\n" not in text and " " in title:
-            words = title.split(" ")
-            half = len(title) / 2
-            cut = min(range(1, len(words)), key=lambda i: abs(len(" ".join(words[:i])) - half))
-            text = " ".join(words[:cut]) + "\n" + " ".join(words[cut:])
+    t = ax.set_title(text, fontsize=size)
+    for _ in range(12):
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        bb = t.get_window_extent(renderer)
+        w, h = fig.canvas.get_width_height()
+        if bb.x0 < 0 or bb.x1 > w:          # too wide: wrap, then shrink
+            if "\n" not in text and " " in title:
+                words = title.split(" ")
+                half = len(title) / 2
+                cut = min(range(1, len(words)), key=lambda i: abs(len(" ".join(words[:i])) - half))
+                text = " ".join(words[:cut]) + "\n" + " ".join(words[cut:])
+            else:
+                size *= 0.9
+            t = ax.set_title(text, fontsize=size)
+        elif bb.y1 > h:                       # past the top: the axes make room
+            top = fig.subplotpars.top - (bb.y1 - h + 4) / h
+            fig.subplots_adjust(top=top)
         else:
-            size *= 0.9
+            break
     return t
 
 
@@ -690,11 +700,16 @@ def animate_leg(leg, q1, q2, t, ax=None, max_frames: int = 60, speed: float = 1.
         allp = np.vstack([allp, sp])
     lo, hi = allp.min(axis=0), allp.max(axis=0)
     pad = 0.08 * float(np.max(hi - lo)) + 0.005
-    ax.set_xlim(lo[0] - pad, hi[0] + pad)
+    # at least 0.6 as wide as tall: a leg swinging little in x made an axes too narrow for
+    # its own tick labels
+    cx, half = (lo[0] + hi[0]) / 2, max((hi[0] - lo[0]) / 2, 0.3 * (hi[1] - lo[1]))
+    ax.set_xlim(cx - half - pad, cx + half + pad)
     ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
+    from matplotlib.ticker import MaxNLocator  # load time: matplotlib, only when drawing
+    ax.xaxis.set_major_locator(MaxNLocator(4))   # a narrow figure: more tick labels would touch
     if title:
         fit_title(ax, title)   # the figure is small: a long title wraps rather than being cut
     (links,) = ax.plot([], [], "o-", color="k", lw=2.5, ms=5)

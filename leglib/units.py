@@ -134,9 +134,10 @@ def percent_interval_text(value: float, interval, sign: bool = True) -> str:
 
 _TOKEN = re.compile(r"([A-Za-z]+|1)(?:\^(-?\d+))?")
 _SUPERSCRIPT = str.maketrans("0123456789-", "⁰¹²³⁴⁵⁶⁷⁸⁹⁻")
+_PLAIN = str.maketrans("⁰¹²³⁴⁵⁶⁷⁸⁹⁻", "0123456789-")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Unit:
     """A product of named units with integer powers, kept in the order first named (rad is a
     unit here: a gain per radian says so). ``Unit.parse("N*m*s/rad")``; ``*`` and ``/``
@@ -147,8 +148,9 @@ class Unit:
     @classmethod
     def parse(cls, text: str) -> "Unit":
         """From leglib's unit strings ("N*m*s/rad", "kg*m^2", "m/s^2", "1/s", "-" or "" for
-        none); a "·" or a space also multiplies. Everything after the first "/" divides."""
-        text = str(text).strip()
+        none) or as :meth:`__str__` writes them ("N·m/(rad·s)", "1/s²"); a "·" or a space also
+        multiplies, and each "/" divides what follows it."""
+        text = re.sub(r"([⁻]?[⁰¹²³⁴⁵⁶⁷⁸⁹]+)", lambda m: "^" + m.group(1).translate(_PLAIN), str(text).strip())
         if text in ("", "-", "1"):
             return cls()
         if "(" in text.partition("/")[0]:   # a grouped numerator, "(turn/s)/turn": not a product of names
@@ -164,6 +166,12 @@ class Unit:
                     raise ValueError(f"unit {text!r}: cannot read {tok!r}")
                 out = out * cls(((m.group(1), sign * int(m.group(2) or 1)),))
         return out
+
+    def __eq__(self, other) -> bool:   # the same powers in any order
+        return isinstance(other, Unit) and dict(self.powers) == dict(other.powers)
+
+    def __hash__(self) -> int:
+        return hash(frozenset(self.powers))
 
     def __mul__(self, other: "Unit") -> "Unit":
         powers = dict(self.powers)

@@ -95,6 +95,7 @@ def test_a_legend_on_data_is_found_and_moved_off_it():
     assert plots.legends_on_data(fig3) == [] and plots.keep_legends_off_data(fig3) == []
 
 
+@pytest.mark.filterwarnings("ignore:Animation was deleted without rendering")   # only its layout is checked
 def test_clipped_text_and_a_title_fit_to_the_figure():
     """An animation's small fixed-size figure cut its long title at both ends; fit_title
     wraps (and shrinks) it until it fits."""
@@ -103,6 +104,14 @@ def test_clipped_text_and_a_title_fit_to_the_figure():
     assert plots.clipped_texts(fig) and "runs past the figure's edge" in plots.clipped_texts(fig)[0]
     plots.fit_title(ax, "measured step, map's gains for the thesis target")
     assert plots.clipped_texts(fig) == [] and "\n" in ax.get_title()
+    assert ax.title.get_fontsize() >= 10          # wrapped and given room, not shrunk to a whisper
+    # the leg's animation uses it
+    from leglib.params import load_leg
+    leg = load_leg("thesis")
+    t = np.linspace(0, 1, 50)
+    anim = plots.animate_leg(leg, np.full(50, leg.q1), leg.q2 + 0.1 * t, t, max_frames=5,
+                             title="measured step, map's gains for the thesis target")
+    assert plots.clipped_texts(anim.figure) == [] and plots.text_overlaps(anim.figure) == []
 
 
 def test_map_slices_name_every_empty_cell_and_keep_their_tick_labels_apart():

@@ -88,3 +88,10 @@ def test_dynamics_text():
     assert U.dynamics_text(0.2424, 5.021, (0.162, 0.323), (4.47, 5.57), zeta_name="ζ", sep="=") == \
         "ζ = 0.24 [0.16, 0.32], fn = 5.0 [4.5, 5.6] Hz"
     assert U.dynamics_text(0.2424, 5.021) == "zeta 0.242, fn 5.02 Hz"
+
+
+def test_units_read_back_as_written_and_compare_in_any_order():
+    for text in ("N·m·s/rad", "1/s²", "N·m/(rad·s)", "rad/(N·m·s²)", "kg·m²"):
+        assert str(U.Unit.parse(text)) == text
+    assert U.Unit.parse("m*N") == U.Unit.parse("N*m") and U.Unit.parse("N*m") != U.Unit.parse("N")
+    assert U.Unit.parse("rad/s/s") == U.Unit.parse("rad/s^2")
