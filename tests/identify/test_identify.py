@@ -318,3 +318,13 @@ def test_a_value_on_its_bound_is_not_identified():
         else:
             assert getattr(f, name) > 1e-6 * 0.03
     assert "coulomb_pos" in f.not_identifiable or "coulomb_neg" in f.not_identifiable
+
+
+def test_a_signed_parameters_interval_is_not_clipped_at_zero():
+    """A friction level's interval stops at 0 (its bound); an initial velocity or a cross
+    damping may be negative: its interval is value -+ 1.645 se (it once read [0, -1.56] for
+    dq2_0 = -1.56)."""
+    from leglib.identify.friction import Z90, _interval90
+    lo, hi = _interval90(-1.5616, 0.0003, low=-20.0)
+    assert lo < -1.5616 < hi < 0 and hi - lo == pytest.approx(2 * Z90 * 0.0003)
+    assert _interval90(0.001, 0.002)[0] == 0.0          # a level: not below its bound

@@ -145,3 +145,25 @@ def test_a_panel_figure_redraws_what_changed_and_keeps_the_rest():
     x, y = view.axes[1].transData.transform((0.2, 0.8))
     px = (int(h - y), int(x))
     assert tuple(first[px][:3]) != (255, 255, 255) and tuple(second[px][:3]) == (255, 255, 255)
+
+
+def test_the_pole_panels_picture_reads(leg, monkeypatch):
+    """The panel's picture at the size it is shown: no texts over each other or past its
+    edge, no legend on the curves (the torques' legend once hid the torque limit)."""
+    from leglib import plots
+    made = []
+    real = widgets.PanelFigure.__init__
+
+    def keep(self, *args, **kwargs):
+        real(self, *args, **kwargs)
+        made.append(self)
+
+    monkeypatch.setattr(widgets.PanelFigure, "__init__", keep)
+    widgets.pole_placement_panel(M.linearize(leg), center=-7.0, leg=leg, torque_limit=0.73)
+    (view,) = made
+    view.png()
+    assert plots.text_overlaps(view.fig) == [] and plots.clipped_texts(view.fig) == []
+    assert plots.legends_on_data(view.fig) == []
+    # K, L, Nbar shown with their units
+    assert "N·m/rad, N·m·s/rad, N·m/rad, N·m·s/rad by state" in widgets.design_readout(
+        widgets.pole_panel_design(M.linearize(leg), -7.0, 0.007, 6.0))
