@@ -299,7 +299,8 @@ def gain_step_panel(odrv, gm=None, pos_gain: float = 50.0, vel_gain: float = 0.0
     """Sliders for pos_gain, vel_gain and vel_integrator_gain: each change runs one step
     (:func:`leglib.experiments.step.step_response`) and shows the response with its fitted
     second-order step, the setpoint and R^2 (or "not a second-order step"), the readout
-    (:func:`step_readout`), and its place on the map's achievable region."""
+    (:func:`step_readout`), and its place on the map's achievable region. The panel's
+    ``last_step`` is the :class:`~leglib.experiments.step.StepResponse` it shows."""
     import ipywidgets as W  # load time: ipywidgets, only inside a notebook
 
     cfg = odrv.config
@@ -323,6 +324,7 @@ def gain_step_panel(odrv, gm=None, pos_gain: float = 50.0, vel_gain: float = 0.0
 
     def redraw(*_):
         resp = step_response(odrv, s_pos.value, s_vel.value, s_int.value)
+        panel.last_step = resp
         p = identify_response(resp, leg)
         text = step_readout(resp, p, leg=leg)
         readout.value = f"<code class='leglib-readout'>{text}</code>"
@@ -347,7 +349,9 @@ def gain_step_panel(odrv, gm=None, pos_gain: float = 50.0, vel_gain: float = 0.0
             here.set_offsets(np.array([[p.zeta, p.fn]]) if p.status == "ok" else np.empty((0, 2)))
         view.show()
 
+    panel = W.VBox([W.HBox([s_pos, s_vel, s_int]), readout, out])
+    panel.last_step = None   # the StepResponse the readout and the figure show
     for s in (s_pos, s_vel, s_int):
         s.observe(redraw, names="value")
     redraw()
-    return W.VBox([W.HBox([s_pos, s_vel, s_int]), readout, out])
+    return panel

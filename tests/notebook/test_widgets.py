@@ -6,6 +6,7 @@ import matplotlib
 import leglib as lg
 from leglib import model as M
 from leglib.design.points import identify_response
+from leglib.device.virtual.wire import forget, serial_for_seed
 from leglib.notebook import widgets
 
 matplotlib.use("Agg")
@@ -36,6 +37,10 @@ def test_pole_panel_readout_follows_sliders(leg):
 
 def test_gain_panel_readout_follows_sliders(leg):
     def device():
+        # a virtual board lives for the process under its seed (its calibration and noise go on
+        # from session to session, as a powered board's do): each of the two sessions below
+        # gets a fresh board of seed 5, so both start from the same history
+        forget(serial_for_seed(5))
         dev = lg.connect("virtual", leg=leg, seed=5)
         lg.configure(dev)
         lg.calibrate(dev)
