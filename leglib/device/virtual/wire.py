@@ -9,18 +9,16 @@ over it (``odrive.runtime_device.RuntimeDevice``, ``odrive.sync_tree.SyncObject`
 virtual and a USB ODrive are the same kind of Python object: ``odrv.axis0.controller.config.
 pos_gain``, ``odrv.save_configuration()`` and ``odrive.utils.dump_errors(odrv)`` behave alike.
 
-Every endpoint of the table resolves:
+Every endpoint of the table resolves onto the firmware model's tree: its own rows
+(:data:`leglib.device.virtual.firmware.ENDPOINTS`) and, for every other endpoint, the
+catalog's (:mod:`leglib.device.virtual.catalog`: settings stored as the firmware stores them,
+derived readings, and what the model refuses, with the reason); the firmware identity
+(``fw_version_*``) is that of the table served. :func:`endpoint_coverage` lists them.
 
-- endpoints the firmware model implements (the rows of its table,
-  :data:`leglib.device.virtual.firmware.ENDPOINTS`, built into its tree) are read, written
-  and called there, each one USB transaction on the virtual clock;
-- the firmware identity (``fw_version_*``) is that of the table served;
-- every other endpoint is *unmodeled*: it holds the firmware's default value
-  (:func:`firmware_defaults`, extracted from the firmware's sources, else zero), a write that changes it warns once per device
-  (:class:`UnmodeledEndpointWarning`, naming it) because the real device would change its
-  behaviour, and calling an unmodeled function that acts on the device raises
-  ``NotImplementedError`` naming it (queries in :data:`UNMODELED_QUERIES` return zeros).
-  :func:`endpoint_coverage` lists which is which.
+Each endpoint operation costs what the firmware's protocol costs (fibre's legacy protocol,
+legacy_protocol.cpp:456-497: one request-response per endpoint): a property read or write
+is one USB transaction, a function call one per input argument, one for the trigger and one
+per output (legacy_object_client.cpp:668-685).
 
 :func:`find_any` (exported as :func:`leglib.device.virtual.wire.find_any`) keeps one virtual
 device per serial number for the life of the process. When the device reboots (its
@@ -39,7 +37,6 @@ import json
 import struct
 import threading
 import time as _time
-import warnings
 from dataclasses import dataclass, field
 from importlib import resources
 
@@ -52,7 +49,7 @@ from ... import checks
 from ...errors import DeviceLostError, ParameterError
 from ...params import PlantParams, load_plant
 from .firmware import VirtualODrive
-from .tree import Endpoint, Leaf, model_paths
+from .tree import Endpoint, Leaf, UnmodeledError, model_paths
 
 FIRMWARE_TABLES = {"0.5.1": "endpoints_fw-v0.5.1.json", "0.5.6": "endpoints_fw-v0.5.6.json"}
 FIRMWARE_ALIASES = {"0.5": "0.5.6"}
@@ -62,24 +59,8 @@ SERIAL_BASE = 0x3A7F1E2D4B00  # the model's serial_number is SERIAL_BASE + seed
 _FORMATS = {"int8": "b", "uint8": "B", "int16": "h", "uint16": "H", "int32": "i", "uint32": "I",
             "int64": "q", "uint64": "Q", "bool": "?", "float": "f", "endpoint_ref": "I"}
 
-# Defaults of unmodeled endpoints: the firmware's configuration defaults, extracted from its
-# sources (leglib/device/virtual/tables/defaults_fw-v*.json, by leglib/device/virtual/tables/extract_defaults.py, each
-# with its file:line), then these, else zero.
-EXTRA_DEFAULTS = {
-    "hw_version_variant": 24,   # the 24 V board variant, as the twin's bus (hw_version.py: v3.6-24V)
-}
-
-# functions that only read something: unmodeled, they return zeros instead of raising
-UNMODELED_QUERIES = {"test_function", "get_oscilloscope_val", "oscilloscope.get_val", "get_adc_voltage",
-                     "get_interrupt_status", "get_dma_status", "get_gpio_states", "get_drv_fault",
-                     "axis*.controller.get_anticogging_value"}
-
 # the firmware identity endpoints, answered from the table served
 _IDENTITY = ("fw_version_major", "fw_version_minor", "fw_version_revision", "fw_version_unreleased")
-
-
-class UnmodeledEndpointWarning(UserWarning):
-    """A write to an endpoint the virtual ODrive holds but does not model changed its value."""
 
 
 class VirtualDeviceLost(DeviceLostException, DeviceLostError):
@@ -138,7 +119,8 @@ _DEFAULTS_CACHE: dict[str, dict] = {}
 def firmware_defaults(firmware: str = "0.5.6") -> dict:
     """``{"axis*.motor.config.calibration_current": {"value": 10.0, "source":
     "Firmware/MotorControl/motor.hpp:20"}, ...}``: the configuration defaults of
-    ``firmware``, from its sources (ODrive v3.6, 24 V)."""
+    ``firmware``, from its sources (ODrive v3.6, 56 V: the board presented). Defaults that
+    differ by axis carry ``"axes": [axis0, axis1]``."""
     version = normalize_firmware(firmware)
     if version not in _DEFAULTS_CACHE:
         raw = resources.files("leglib.device.virtual.tables").joinpath(f"defaults_fw-v{version}.json").read_text()
@@ -186,11 +168,12 @@ class _Endpoint:
     kind: str            # "property" or "function"
     codec: str           # property codec, or "function"
     writable: bool
-    source: str          # "model", "identity" or "unmodeled"
+    source: str          # "model", "identity" or "unmodeled" (no row: an error at use)
     node: object = None  # the model's _Node holding it (source "model")
     leaf: str = ""
     row: Endpoint = None  # the model's row (source "model")
     outputs: tuple = ()
+    n_inputs: int = 0
 
 
 def _build_endpoints(leaves: dict, version: str) -> dict[int, _Endpoint]:
@@ -201,7 +184,8 @@ def _build_endpoints(leaves: dict, version: str) -> dict[int, _Endpoint]:
         kind = "function" if e["type"] == "function" else "property"
         ep = _Endpoint(path=path, id=e["id"], kind=kind, codec=e["type"],
                        writable="w" in e.get("access", ""), source="unmodeled",
-                       outputs=tuple(o["type"] for o in e.get("outputs", ())))
+                       outputs=tuple(o["type"] for o in e.get("outputs", ())),
+                       n_inputs=len(e.get("inputs", ())))
         if kind == "property" and path in _IDENTITY:
             ep.source = "identity"
         else:
@@ -218,14 +202,17 @@ def endpoint_coverage(sim=None, firmware: str = "0.5.6") -> dict:
 
     Returns
     -------
-    dict with lists of endpoint paths: ``"model"`` (answered by the model), ``"identity"``
-    (firmware version, from the table), ``"unmodeled"`` (held at the firmware default).
+    dict with lists of endpoint paths: ``"model"`` (answered by the model: its own rows and
+    the catalog's), ``"identity"`` (firmware version, from the table), ``"unmodeled"`` (no
+    row: empty when the catalog covers the table).
     """
+    from .catalog import fill  # load time: the catalog reads these tables
     version = normalize_firmware(firmware)
     if sim is not None:
         leaves = sim._leaves
     else:
-        rows = model_paths(VirtualODrive.endpoints, _model_firmware(version))
+        own = VirtualODrive.endpoints
+        rows = model_paths(tuple(own) + fill(own, _model_firmware(version)), _model_firmware(version))
         leaves = {path: Leaf(None, path.rpartition(".")[2], row) for path, (_, row) in rows.items()}
     out = {"model": [], "identity": [], "unmodeled": []}
     for ep in _build_endpoints(leaves, version).values():
@@ -252,40 +239,17 @@ def _boot_count(sim) -> int:
 
 @dataclass
 class _Record:
-    """One virtual ODrive of the process: the model, its table and the held endpoints."""
+    """One virtual ODrive of the process: the model and its table."""
 
     sim: object
     version: str
     serial: int
     args: dict
-    held: dict = field(default_factory=dict)        # unmodeled endpoint values (live)
-    saved_held: dict = field(default_factory=dict)  # ... as last saved to "flash"
-    warned: set = field(default_factory=set)
     handle: object = None                           # the client object of the current boot
     handle_boot: int = -1
     link: int = 0                                   # re-plugs after a lost link
     handle_link: int = -1
     lock: threading.RLock = field(default_factory=threading.RLock)
-
-    def default(self, path: str, codec: str):
-        hit = firmware_defaults(self.version).get(_generic(path))
-        if hit is not None:
-            value = hit["value"]
-            if codec not in ("float", "bool") and isinstance(value, (int, float)):
-                # C's conversion to the member's type: uint8 axis_to_mirror = -1 reads 255
-                fmt = "<" + _FORMATS[codec]
-                bits = 8 * struct.calcsize(fmt)
-                value = int(value) % (1 << bits)
-                if fmt[1].islower() and value >= 1 << (bits - 1):
-                    value -= 1 << bits
-            return value
-        if path in EXTRA_DEFAULTS:
-            return EXTRA_DEFAULTS[path]
-        return False if codec == "bool" else 0.0 if codec == "float" else 0
-
-    def reboot_held(self):
-        """After a reboot: unmodeled values are the defaults, saved configuration applied."""
-        self.held = dict(self.saved_held)
 
 
 class _Interface:
@@ -376,33 +340,21 @@ class VirtualUSBDevice:
     def _read_one(self, ep: _Endpoint):
         if ep.source == "model":
             return self._model(lambda: getattr(ep.node, ep.leaf))
-        self._transaction()
         if ep.source == "identity":
+            self._transaction()
             v = _version_tuple(self._record.version)
             return {"fw_version_major": v[0], "fw_version_minor": v[1], "fw_version_revision": v[2],
                     "fw_version_unreleased": 0}[ep.path]
-        rec = self._record
-        return rec.held.get(ep.path, rec.default(ep.path, ep.codec))
+        raise UnmodeledError(f"virtual ODrive (firmware {self._record.version}): {ep.path} has no row")
 
     def _write_one(self, ep: _Endpoint, value):
         if ep.source == "model":
             if not ep.row.writable:
-                raise NotImplementedError(f"virtual ODrive: writing {ep.path} is not modeled (the "
-                                          f"firmware accepts it)")
+                raise AttributeError(f"{ep.path} is read-only")
             return self._model(lambda: setattr(ep.node, ep.leaf, value))
         if ep.source == "identity":
             raise AttributeError(f"{ep.path} is read-only")
-        self._transaction()
-        rec = self._record
-        old = rec.held.get(ep.path, rec.default(ep.path, ep.codec))
-        fmt = "<" + _FORMATS[ep.codec]
-        old = struct.unpack(fmt, struct.pack(fmt, self._to_wire(ep.codec, old)))[0]  # as on the wire
-        if value != old and ep.path not in rec.warned:
-            rec.warned.add(ep.path)
-            warnings.warn(f"virtual ODrive: {ep.path} is not modeled; the value {value!r} is held "
-                          f"but changes nothing in the simulated device (the real ODrive would act "
-                          f"on it)", UnmodeledEndpointWarning, stacklevel=2)
-        rec.held[ep.path] = value
+        raise UnmodeledError(f"virtual ODrive (firmware {self._record.version}): {ep.path} has no row")
 
     def _transaction(self):
         tx = getattr(self._sim, "_transaction", None)
@@ -448,30 +400,19 @@ class VirtualUSBDevice:
             ep = self._endpoint(endpoint_id, "function")
             args = struct.unpack(in_format, struct.pack(in_format, *args))  # the wire's conversions
             n_out = len(struct.unpack(out_format, bytes(struct.calcsize(out_format))))
-            if ep.source == "model":
-                boot = _boot_count(self._sim)
-                saving = {k: v for k, v in self._record.held.items()
-                          if ".config." in k or k.startswith("config.")}
-                result = False
-                try:
-                    result = self._model(lambda: getattr(ep.node, ep.leaf)(*args))
-                    wrote = result is not False    # True, or None on 0.5.1 (no return value)
-                except Exception:
-                    wrote = False
-                    raise
-                finally:
-                    # flash is written also when the board resets inside the call (0.5.2+)
-                    if ep.path == "save_configuration" and (wrote or _boot_count(self._sim) != boot):
-                        self._record.saved_held = saving
-            elif _generic(ep.path) in UNMODELED_QUERIES:
+            if ep.source != "model":
+                raise UnmodeledError(f"virtual ODrive (firmware {self._record.version}): {ep.path}() has no row")
+            # legacy_object_client.cpp:668-685: each input argument is written to its own
+            # endpoint, then the trigger (the model's call, one transaction), then each
+            # output is read from its own endpoint
+            for _ in range(ep.n_inputs):
                 self._transaction()
-                result = tuple(0 for _ in range(n_out))
-            else:
-                raise NotImplementedError(f"virtual ODrive (firmware {self._record.version}): "
-                                          f"{ep.path}() is not modeled")
+            result = self._model(lambda: getattr(ep.node, ep.leaf)(*args))
             if _boot_count(self._sim) != self._boot:
                 # the firmware resets inside the call (NVIC_SystemReset): no response comes back
                 raise VirtualDeviceLost(self, f"{ep.path}() rebooted the virtual ODrive")
+            for _ in range(n_out):
+                self._transaction()
             if n_out == 0:
                 return ()
             values = result if isinstance(result, tuple) else (result,)
@@ -505,8 +446,6 @@ def _client_loop() -> asyncio.AbstractEventLoop:
 
 def _connect_client(record: _Record):
     """A fresh client object tree over the current boot of ``record``'s device."""
-    if _boot_count(record.sim) != record.handle_boot and record.handle_boot >= 0:
-        record.reboot_held()
     device = VirtualUSBDevice(record)
     fut = asyncio.run_coroutine_threadsafe(RuntimeDevice.from_device(device, json_cache=None), _client_loop())
     runtime = fut.result()
