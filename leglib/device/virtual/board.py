@@ -163,6 +163,7 @@ class BoardMixin:
         the brake resistor's state follows the kernel's (a bus fault disarms it), the
         brake's saturation latch, and on fw 0.5.1 the axes' own view of a fault."""
         st = self.st
+        self._vbus_trip_check()
         if self._brake_armed and st.C[0, 0, L.C_BRAKE_ON] == 0.0:
             self._brake_armed = False
         vbus = self._vbus()
@@ -170,6 +171,37 @@ class BoardMixin:
             self._brake_saturated = True                     # low_level.cpp:350-353
         if self.firmware == "0.5.1":
             self._board_events_051()
+
+    def _vbus_trip_check(self):
+        """main.cpp:300-305 as the kernel's _board_checks does it, at the host's step: the
+        kernel's vectorized path (a sweep block, leglib/twin/vector.py) has no board checks,
+        so the trip is checked here too (exact while the bus carries no current; under load
+        the reference path checks every tick)."""
+        st = self.st
+        if not st.C[0, 0, L.C_VBUS_CHECKS] > 0.0:
+            return
+        vbus = self._vbus()
+        under = not (vbus >= float(st.C[0, 0, L.C_UV_TRIP]))
+        over = not (vbus <= float(st.C[0, 0, L.C_OV_TRIP]))
+        if not (under or over):
+            return
+        if self.firmware == "0.5.1":            # fw-v0.5.1 axis.cpp:173-176
+            for a in range(2):
+                st.AI[0, a, L.I_AXIS_ERR] |= ((L.AXIS_ERROR_DC_BUS_UNDER_VOLTAGE if under else 0)
+                                              | (L.AXIS_ERROR_DC_BUS_OVER_VOLTAGE if over else 0))
+                self._disarm(a)
+        else:
+            self._disarm_with_error((L.ODRIVE_ERROR_DC_BUS_UNDER_VOLTAGE if under else 0)
+                                    | (L.ODRIVE_ERROR_DC_BUS_OVER_VOLTAGE if over else 0))
+
+    def _vbus_trips_reachable(self) -> bool:
+        """Whether a bus current the motors can draw (both at the sense range, 60.75 A)
+        could take the bus past a trip level (the step batch's vectorized path does not
+        check it)."""
+        st = self.st
+        ocv, r = float(st.C[0, 0, L.C_VBUS]), float(st.C[0, 0, L.C_VBUS_R])
+        swing = r * 2 * 61.0
+        return not (ocv - swing >= float(st.C[0, 0, L.C_UV_TRIP]) and ocv + swing <= float(st.C[0, 0, L.C_OV_TRIP]))
 
     def _board_events_051(self):
         """fw-v0.5.1: a bus fault is low_level_fault (low_level.cpp:87-95): the motors get

@@ -55,7 +55,7 @@ from ...errors import DeviceLostError
 from ...params import OdriveConfig, PlantParams
 from ...twin import layout as L
 from ...twin.host import Twin
-from . import catalog
+from . import catalog, transport
 from .board import BATTERY_RESISTANCE, BATTERY_VOLTAGE, BoardMixin
 from .procedures import THREAD_START_AFTER_RESET, AxisThread
 from .readings import AxisReadings
@@ -513,13 +513,14 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         self.realtime = bool(on)
         self._t0_wall = _time.monotonic() - self.time
 
-    # the virtual clock may run this far ahead of the wall clock before the host is made to
-    # wait: sleeping for every 0.4 ms transaction would cost more in the OS's sleep overshoot
-    PACE_SLACK = 1e-3
-
     def _pace(self):
+        """Real time: the virtual clock never runs ahead of the wall clock. A transaction
+        that moved it ahead waits (the host's transaction takes that long), one left behind
+        by the host's own work catches up (the board ran on meanwhile). So a request is
+        taken up within one axis-thread period of wall time after its write returns, as on
+        the board (axis.cpp:447-451): a script that sleeps 1 ms sees it taken."""
         ahead = self.time - (_time.monotonic() - self._t0_wall)
-        if ahead > self.PACE_SLACK:
+        if ahead > 0.0:
             _time.sleep(ahead)
         elif ahead < -self.twin.dt:
             self._advance(-ahead)
@@ -538,9 +539,9 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         if booted is not None and self.time < booted + BOOT_TIME:
             raise DeviceLostError("virtual ODrive: the board is rebooting and does not answer yet")
         self.transactions += 1
+        self._usb_packets += 1
         p = self.twin.plant
-        latency = p.usb_latency * (1.0 + p.usb_jitter * (self._rng.random() - 0.5) * 2.0)
-        self._advance(latency)
+        self._advance(transport.latency(p.usb_latency, p.usb_jitter, float(self._rng.random())))
         if self.realtime:
             self._pace()
 
@@ -716,16 +717,18 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         ax["motor_calibrated"] = ax["motor_calibrated"] or value
 
     def _set_encoder_pre_calibrated(self, a: int, value: bool):
-        # encoder.cpp:130-138: an incremental encoder without a found index cannot be
-        # pre-calibrated: the flag reads back False
+        # encoder.hpp set_pre_calibrated -> encoder.cpp:130-138 check_pre_calibrated: the flag
+        # stays only on a ready encoder, and an incremental one only once its index is found
         ax = self._axis[a]
-        ax["encoder_pre_calibrated"] = bool(value) and ax["encoder_ready"] and ax["use_index"] and False
+        ax["encoder_pre_calibrated"] = bool(value) and ax["encoder_ready"] and bool(ax.get("index_found"))
 
     def _set_use_index(self, a: int, value: bool):
-        if value:
-            raise ValueError(f"odrv.axis{a}.encoder.config.use_index: the index search is not simulated "
-                             f"(this leg's encoders are used without index)")
-        self._axis[a]["use_index"] = False
+        # encoder.hpp set_use_index: stored, the index interrupt (un)subscribed
+        # (encoder.cpp:109-117); the index search finds the AS5047D's index pulse
+        ax = self._axis[a]
+        ax["use_index"] = bool(value)
+        ax["index_armed"] = bool(value) and not ax.get("index_found") and not bool(
+            self._settings[a].get("axis*.encoder.config.find_idx_on_lockin_only"))
 
     def _is_armed(self, a: int) -> bool:
         return bool(self.st.AI[0, a, L.I_MODE] != L.MODE_IDLE)
@@ -784,8 +787,13 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
                                    f"clear it first")
             if ax["state"] != AXIS_STATE_IDLE or ax["pending"] is not None:
                 raise RuntimeError(f"axis{a} is not IDLE: a whole step starts from rest")
+        if self._vbus_trips_reachable():
+            raise RuntimeError("the bus trip levels (config.dc_bus_under/overvoltage_trip_level) are within "
+                               "reach of the battery's voltage under load: a whole step batch does not check "
+                               "them; run the steps through the polling path")
         start = self.st.copy()
         start.C[0, :, L.C_WD_ENABLE] = 0.0
+        start.C[0, 0, L.C_VBUS_CHECKS] = 0.0        # out of reach (checked above)
         start.AI[0, :, L.I_TRAJ_DONE] = 1
         start.ABORT[...] = 0
         out = self.twin.step_batch(gains, start=start, **kwargs)

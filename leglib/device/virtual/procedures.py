@@ -48,16 +48,33 @@ R_MEASUREMENT_KI = 1.0           # motor.cpp:71: the resistance law's integrator
 L_RANGE = (2e-6, 4000e-6)        # motor.cpp:481 [H]
 CONTROL_PERIOD = 1.0 / 8000.0    # the current measurement period [s]
 
+# the procedures' loops run every 1 ms on the board (osDelay(1)); the model steps them every
+# LOOP_STEP and takes the iterations between from the rotor's motion, which is steady at that
+# scale (the count at each 1 ms iteration interpolated between the step's ends, the field's
+# speed stepped once per step): a finish condition is seen up to LOOP_STEP late
+LOOP_STEP = 0.02
+
 # how long after a reset the axis threads start: rtos_main waits until the motors' current
 # measurements are valid (main.cpp:561-584), i.e. until the current sensors' DC calibration
 # has run dc_calib_tau * 7.5 = 1.5 s (motor.cpp:606-607, motor.hpp dc_calib_tau 0.2 s);
 # the host finds the board on USB about then too (firmware.BOOT_TIME)
 THREAD_START_AFTER_RESET = 1.5
 
+# Axis::default_calibration (axis.cpp:40-52; fw-v0.5.1 axis.cpp:55-67): the finish conditions
+# of the calibration lock-in, which the table does not expose
+CALIBRATION_LOCKIN_FINISH = {"finish_distance": 100.0 * 2.0 * math.pi, "finish_on_vel": False,
+                             "finish_on_distance": True, "finish_on_enc_idx": True}
+
 # the commutation a pre-calibrated encoder may have: the twin commutates ideally, which is
 # the board's behaviour only while the stored phase_offset is this board's own (within a
 # twentieth of an electrical period, a 5 % torque loss at most)
 PHASE_OFFSET_TOLERANCE = 1.0 / 20.0
+
+
+def _interpolated_sum(c0: int, c1: int, n: int) -> float:
+    """The sum of the counts at the n iterations of a step from count c0 to c1 (sampled at
+    the start of each iteration, the count moving steadily)."""
+    return n * c0 + (c1 - c0) * (n - 1) / 2.0
 
 
 class AxisThread:
@@ -96,6 +113,12 @@ class AxisThread:
                 self._consume_request(a, ax["pending"][0])
             while ax["wake"] is not None and now >= ax["wake"]:
                 self._step_task(a)
+            # the index interrupt fires whenever the encoder passes its index while armed
+            # (encoder.cpp:86-117), not only in the index search's spin
+            turns = self._rotor_encoder_turns(a)
+            if ax.get("index_armed") and ax.get("index_turns") is not None and ax["task"] is None:
+                self._index_check(a, ax["index_turns"])
+            ax["index_turns"] = turns
 
     def _closed_loop_exit_ok(self, a: int) -> bool:
         # axis.cpp:348-350: stop_closed_loop_control returns check_for_errors()
@@ -404,16 +427,18 @@ class AxisThread:
         if not self._armed(a):
             return False
         init = self._count(a)
-        total, steps, distance = 0, 0, 0.0
-        # scan forward (encoder.cpp:389-398): one sample of the count per iteration
+        total, steps, distance = 0.0, 0, 0.0
+        # scan forward (encoder.cpp:389-398): one sample of the count per 1 ms iteration
         self._field_velocity(a, scan_omega)
-        while distance < scan_distance:
-            total += self._count(a)
-            steps += 1
-            yield AXIS_THREAD_PERIOD
+        iterations = int(math.ceil(scan_distance / (scan_omega * AXIS_THREAD_PERIOD) - 1e-9))
+        for n in self._loop_steps(iterations):
+            c0 = self._count(a)
+            yield n * AXIS_THREAD_PERIOD
             if not self._armed(a):
                 return False
-            distance += scan_omega * AXIS_THREAD_PERIOD
+            total += _interpolated_sum(c0, self._count(a), n)
+            steps += n
+            distance += scan_omega * AXIS_THREAD_PERIOD * n
         count = self._count(a)
         if count > init + 8:                            # encoder.cpp:401-412
             ax["direction"] = 1
@@ -432,15 +457,16 @@ class AxisThread:
             return False
         # scan backwards (encoder.cpp:427-436)
         self._field_velocity(a, -scan_omega)
-        while distance > 0.0:
-            total += self._count(a)
-            steps += 1
-            yield AXIS_THREAD_PERIOD
+        for n in self._loop_steps(iterations):
+            c0 = self._count(a)
+            yield n * AXIS_THREAD_PERIOD
             if not self._armed(a):
                 return False
-            distance -= scan_omega * AXIS_THREAD_PERIOD
+            total += _interpolated_sum(c0, self._count(a), n)
+            steps += n
         self._disarm(a)
         # encoder.cpp:445-447: the mean count of the scans is electrical angle 0
+        total = int(round(total))
         offset = int(total / steps) if steps else 0     # C's int64 division truncates
         residual = total - offset * steps
         enc["axis*.encoder.config.phase_offset" if self.firmware != "0.5.1" else "axis*.encoder.config.offset"] = offset
@@ -474,12 +500,27 @@ class AxisThread:
         e = ((stored - count_zero) / period + 0.5) % 1.0 - 0.5
         return e
 
+    @staticmethod
+    def _loop_steps(iterations: int):
+        """The 1 ms iterations of a loop in steps of at most LOOP_STEP."""
+        per = max(1, int(round(LOOP_STEP / AXIS_THREAD_PERIOD)))
+        while iterations > 0:
+            n = min(per, iterations)
+            yield n
+            iterations -= n
+
     # -- lock-in spins (axis.cpp:184-254, encoder.cpp:174-207) ---------------------------
     def _lockin_config(self, a: int, which: str) -> dict:
+        """A lock-in configuration: its endpoints, and the members the table does not expose
+        (calibration_lockin's finish conditions) at the firmware's values (axis.cpp:40-52)."""
         s = self._settings[a]
-        keys = ("current", "ramp_time", "ramp_distance", "accel", "vel", "finish_distance", "finish_on_vel",
-                "finish_on_distance", "finish_on_enc_idx")
-        return {k: s[f"axis*.config.{which}.{k}"] for k in keys}
+        cfg = dict(CALIBRATION_LOCKIN_FINISH) if which == "calibration_lockin" else {}
+        for k in ("current", "ramp_time", "ramp_distance", "accel", "vel", "finish_distance", "finish_on_vel",
+                  "finish_on_distance", "finish_on_enc_idx"):
+            key = f"axis*.config.{which}.{k}"
+            if key in s:
+                cfg[k] = s[key]
+        return cfg
 
     def _run_index_search(self, a: int):
         """encoder.cpp:174-181: use_index on, the index forgotten, a calibration lock-in spin
@@ -533,14 +574,18 @@ class AxisThread:
             if (reached_vel and cfg["finish_on_vel"]) or (reached_dist and cfg["finish_on_distance"]) \
                     or (ax.get("index_found") and cfg["finish_on_enc_idx"]):
                 return True
-            new_vel = min(max(target, vel - accel * AXIS_THREAD_PERIOD), vel + accel * AXIS_THREAD_PERIOD)
-            mean = 0.5 * (vel + new_vel)
+            step = LOOP_STEP
+            new_vel = min(max(target, vel - accel * step), vel + accel * step)
+            # the mean speed over the step: the distance the firmware's ramp covers in it
+            # (a ramp that ends inside the step runs on at the target speed)
+            t_ramp = abs(new_vel - vel) / accel if accel > 0 else 0.0
+            mean = (0.5 * (vel + new_vel) * t_ramp + new_vel * (step - t_ramp)) / step
             self._field_velocity(a, mean)
             before = self._rotor_encoder_turns(a)
-            yield AXIS_THREAD_PERIOD
+            yield step
             if not self._armed(a):
                 return False
-            distance += mean * AXIS_THREAD_PERIOD
+            distance += mean * step
             vel = new_vel
             self._index_check(a, before)
 
@@ -575,15 +620,15 @@ class AxisThread:
         ax["lockin_state"] = 2
         accel = float(cfg["accel"])
         while not done(True):
-            mean = vel + 0.5 * accel * AXIS_THREAD_PERIOD
+            mean = vel + 0.5 * accel * LOOP_STEP
             self._field_velocity(a, mean)
             before = self._rotor_encoder_turns(a)
-            yield AXIS_THREAD_PERIOD
+            yield LOOP_STEP
             if not self._armed(a):
                 ax["lockin_state"] = 0
                 return False
-            distance += mean * AXIS_THREAD_PERIOD
-            vel += accel * AXIS_THREAD_PERIOD
+            distance += mean * LOOP_STEP
+            vel += accel * LOOP_STEP
             self._index_check(a, before)
         if not done():
             ax["lockin_state"] = 3
@@ -591,11 +636,11 @@ class AxisThread:
             self._field_velocity(a, vel)
             while not done():
                 before = self._rotor_encoder_turns(a)
-                yield AXIS_THREAD_PERIOD
+                yield LOOP_STEP
                 if not self._armed(a):
                     ax["lockin_state"] = 0
                     return False
-                distance += vel * AXIS_THREAD_PERIOD
+                distance += vel * LOOP_STEP
                 self._index_check(a, before)
         ax["lockin_state"] = 0
         return self.st.AI[0, a, L.I_AXIS_ERR] == 0       # check_for_errors()
