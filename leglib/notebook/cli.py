@@ -1,6 +1,8 @@
 """Command line: ``python -m leglib run`` executes every notebook into reports/;
 ``python -m leglib batch SPEC [--scheduler tcp://...]`` runs notebooks over a grid;
-``python -m leglib robustness`` writes the robustness table to reports/robustness/.
+``python -m leglib robustness`` writes the robustness table to reports/robustness/;
+``python -m leglib odrivetool [--seed N --firmware 0.5.6 --plant NAME]`` opens odrivetool's
+shell with ``odrv0`` on a virtual ODrive.
 
 A bad argument (an unreachable or malformed scheduler, an output directory that cannot be
 written, a payload out of range, a bad spec) is one line on stderr (``error: ...``) and
@@ -120,11 +122,59 @@ def _parser() -> argparse.ArgumentParser:
     rob.add_argument("--payload", type=_payload, default=0.0, metavar="KG",
                      help=f"foot payload [kg], 0 to {MAX_PAYLOAD:g} (default: %(default)g)")
     rob.add_argument("--quick", action="store_true", help="fewer targets, a shorter friction run (default: off)")
+    tool = sub.add_parser("odrivetool", help="odrivetool's shell (IPython, odrv0) on a virtual ODrive v3.6")
+    tool.add_argument("--seed", type=_seed, default=0, help="the virtual ODrive's seed: its serial number, "
+                      "its noise (default: %(default)s)")
+    tool.add_argument("--firmware", default="0.5.6", choices=("0.5.6", "0.5.1"),
+                      help="firmware release (default: %(default)s)")
+    tool.add_argument("--plant", default="default", choices=plants or None, metavar="PLANT",
+                      help=f"the leg it drives, of {{{', '.join(plants)}}} (default: %(default)s)")
+    tool.add_argument("--no-ipython", action="store_true", help="the plain Python console instead of IPython")
     return parser
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text}: a seed is a non-negative integer")
+    return value
+
+
+def odrivetool(seed: int = 0, firmware: str = "0.5.6", plant: str = "default", no_ipython: bool = False) -> int:
+    """odrivetool's interactive shell (``odrive.shell.launch_shell``: IPython, the
+    ``odrive.utils`` and ``odrive.enums`` names, ``odrv0``) on the virtual ODrive of
+    ``seed``, paced in real time; the client's device manager looks for ODrives on the
+    virtual interface only, so odrv0 is the virtual board and is found again after every
+    reboot (save_configuration, restore_config)."""
+    import asyncio
+
+    async def shell():
+        from odrive.device_manager import get_device_manager  # load time: the odrive client, for this command only
+        from odrive.shell import launch_shell, load_default_ns
+
+        from ..device.virtual import wire
+        dm = get_device_manager()                      # bound to this loop, as odrivetool's
+        wire.find_any(seed=seed, firmware=firmware, plant=plant, realtime=True)
+        _, intf = wire._manager()
+        dm.default_interfaces = {intf}
+        print(f"virtual ODrive v3.6-56V, firmware {firmware}, seed {seed} (serial "
+              f"{wire.serial_for_seed(seed):012X}), plant {plant!r}, in real time")
+        await launch_shell(load_default_ns(), {}, dm, no_ipython=no_ipython)
+
+    asyncio.run(shell())
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    if args.command == "odrivetool":
+        try:
+            return odrivetool(args.seed, args.firmware, args.plant, args.no_ipython)
+        except (LeglibError, ValueError) as exc:
+            return _fail(exc)
     if args.command == "robustness":
         from ..evaluation import robustness  # load time: every layer (numba, control), for this command only
         try:

@@ -136,14 +136,25 @@ class BoardMixin:
         return self._vbus() + VBUS_NOISE * float(self._rng.standard_normal())
 
     def _set_brake_resistance(self, value: float):
-        self.st.C[0, 0, L.C_BRAKE_R] = value
+        self._board["brake_resistance"] = value
+        self._sync_brake()
         self._check_brake_resistance()
+
+    def _sync_brake(self):
+        """The kernel's brake resistor from the board's state: it takes current while armed
+        and its resistance is positive. A resistance that is not positive never brakes
+        (fw-v0.5.1 low_level.cpp:631-652: the duty clamps to 0; 0.5.2+ trips on it); the
+        kernel keeps a positive placeholder for its reciprocal."""
+        r = float(self._board["brake_resistance"])
+        ok = r > 0.0
+        self.st.C[0, 0, L.C_BRAKE_R] = r if ok else 1.0
+        self.st.C[0, 0, L.C_BRAKE_ON] = 1.0 if (self._brake_armed and ok) else 0.0
 
     def _check_brake_resistance(self):
         """low_level.cpp:332-336 (every PWM update, armed or not): an enabled brake resistor
         with a resistance that is not positive disarms the board (0.5.2+)."""
         if self.firmware != "0.5.1" and self._board["enable_brake_resistor"] \
-                and not float(self.st.C[0, 0, L.C_BRAKE_R]) > 0.0:
+                and not float(self._board["brake_resistance"]) > 0.0:
             self._disarm_with_error(ODRIVE_ERROR_INVALID_BRAKE_RESISTANCE)
 
     def _disarm_with_error(self, error: int):
@@ -155,7 +166,7 @@ class BoardMixin:
             st.AI[0, a, L.I_AXIS_ERR] |= L.AXIS_ERROR_MOTOR_FAILED       # motor.cpp:340
             self._disarm(a)
         self._brake_armed = False
-        st.C[0, 0, L.C_BRAKE_ON] = 0.0
+        self._sync_brake()
         st.AI[0, 0, L.I_SYS_ERR] |= error
 
     def _board_events(self):
@@ -164,8 +175,8 @@ class BoardMixin:
         brake's saturation latch, and on fw 0.5.1 the axes' own view of a fault."""
         st = self.st
         self._vbus_trip_check()
-        if self._brake_armed and st.C[0, 0, L.C_BRAKE_ON] == 0.0:
-            self._brake_armed = False
+        if self._brake_armed and st.C[0, 0, L.C_BRAKE_ON] == 0.0 and float(self._board["brake_resistance"]) > 0.0:
+            self._brake_armed = False          # the kernel's bus checks disarmed it
         vbus = self._vbus()
         if vbus > 0 and float(st.AS[0, 0, L.S_BRAKE_I]) * float(st.C[0, 0, L.C_BRAKE_R]) / vbus >= 0.95:
             self._brake_saturated = True                     # low_level.cpp:350-353
@@ -212,7 +223,7 @@ class BoardMixin:
         st = self.st
         if any(int(st.AI[0, a, L.I_MOTOR_ERR]) & _BUS_FAULTS_051 for a in range(2)) and self._brake_armed:
             self._brake_armed = False
-            st.C[0, 0, L.C_BRAKE_ON] = 0.0
+            self._sync_brake()
         for a, ax in enumerate(self._axis):
             err = int(st.AI[0, a, L.I_AXIS_ERR])
             if err & AXIS051_MOTOR_FAILED:

@@ -114,7 +114,8 @@ BOOT_TIME = 1.5
 
 # configuration kept per axis in python (the rest lives in the kernel's C array)
 _AXIS_CONFIG_KEYS = ("control_mode", "cpr", "pole_pairs", "motor_type", "motor_pre_calibrated",
-                     "phase_resistance", "phase_inductance", "calibration_current", "calib_range",
+                     "phase_resistance", "phase_inductance", "calibration_current", "calib_range", "torque_constant",
+                     "offset_measured",
                      "calib_scan_distance", "calib_scan_omega",
                      "encoder_pre_calibrated", "use_index", "direction", "trap_vel_limit",
                      "trap_accel_limit", "trap_decel_limit", "startup_motor_calibration",
@@ -179,7 +180,7 @@ ENDPOINTS = (
     Endpoint("axis*.motor.current_control.Iq_measured", S(L.S_IQ_MEAS, writable=True), until="0.5.1"),
     Endpoint("axis*.motor.current_control.Iq_setpoint", S(L.S_IQ)),
     Endpoint("axis*.motor.config.pole_pairs", Key("pole_pairs"), int),
-    Endpoint("axis*.motor.config.torque_constant", C(L.C_KT)),
+    Endpoint("axis*.motor.config.torque_constant", Key("torque_constant"), setter="_set_torque_constant"),
     Endpoint("axis*.motor.config.motor_type", Key("motor_type"), int,
              check=honoured(0, "the leg's motors are MN5212s driven as HIGH_CURRENT (0); GIMBAL and ACIM "
                                "control (voltage FOC, slip estimation) are not modelled")),
@@ -226,7 +227,7 @@ ENDPOINTS = (
     Endpoint("fw_version_revision", Attr("fw_revision"), int),
     Endpoint("hw_version_major", Const(3), int),
     Endpoint("hw_version_minor", Const(6), int),
-    Endpoint("config.brake_resistance", C(L.C_BRAKE_R), setter="_set_brake_resistance"),
+    Endpoint("config.brake_resistance", Board("brake_resistance"), setter="_set_brake_resistance"),
     Endpoint("config.enable_brake_resistor", Board("enable_brake_resistor"), bool,
              setter="_set_enable_brake_resistor", since="0.5.2"),                # odrive_main.h:82
     Endpoint("config.max_regen_current", C(L.C_MAX_REGEN)),
@@ -323,7 +324,6 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         C[0, :, L.C_INT_RESET_TORQUE] = 1.0
         v056 = self.firmware != "0.5.1"
         C[0, 0, L.C_BRAKE_ON] = 0.0 if v056 else 1.0        # odrive_main.h:82 (0.5.2+)
-        C[0, 0, L.C_BRAKE_R] = 2.0                          # DEFAULT_BRAKE_RESISTANCE (v3.x)
         C[0, 0, L.C_MAX_REGEN] = 0.0
         C[0, 0, L.C_DC_MAX_POS] = np.inf
         C[0, 0, L.C_DC_MAX_NEG] = -0.01                     # odrive_main.h:111
@@ -331,7 +331,7 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         C[0, 0, L.C_VBUS_R] = BATTERY_RESISTANCE
         C[0, 0, L.C_VBUS_CHECKS] = 1.0                      # main.cpp:300-305
         C[0, 0, L.C_REGEN_ERR_STYLE] = 0.0 if v056 else 1.0
-        self._board = {"enable_brake_resistor": not v056}
+        self._board = {"enable_brake_resistor": not v056, "brake_resistance": 2.0}
         self._axis = []
         for a in range(2):
             self._axis.append({
@@ -341,7 +341,7 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
                 "startup_motor_calibration": False, "startup_encoder_offset_calibration": False,
                 "startup_closed_loop_control": False, "phase_resistance": 0.0, "phase_inductance": 0.0,
                 "calibration_current": 10.0, "calib_range": CALIB_RANGE, "calib_scan_distance": CALIB_SCAN_DISTANCE,
-                "calib_scan_omega": CALIB_SCAN_OMEGA,
+                "calib_scan_omega": CALIB_SCAN_OMEGA, "torque_constant": 0.04, "offset_measured": None,
             })
         # every configuration endpoint at the firmware's default for the board presented
         # (tables/defaults_fw-v*.json), the settings of the catalog's rows among them
@@ -410,7 +410,9 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         self._rezero_counts()
         # the brake resistor is armed at start-up when enabled (low_level.cpp:181-183)
         self._brake_armed = bool(self._board["enable_brake_resistor"])
-        st.C[0, 0, L.C_BRAKE_ON] = 1.0 if self._brake_armed else 0.0
+        self._sync_brake()
+        for a, ax in enumerate(self._axis):
+            self._set_torque_constant(a, ax["torque_constant"])
         for a, ax in enumerate(self._axis):
             ax.update({"motor_calibrated": bool(ax["motor_pre_calibrated"]),   # motor.cpp:306
                        # encoder.cpp:19-30: an incremental encoder is ready only after its
@@ -448,6 +450,8 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         self._boot()
         self._booted_at = self.time
         self._tree = self._build_tree()
+        for hook in list(self.__dict__.get("_reset_hooks", ())):    # the wire: the USB device re-enumerates
+            hook(self)
 
     def handle(self):
         """The object tree of the current boot (what a new USB connection gives)."""
@@ -672,7 +676,7 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
             st.AI[0, 0, L.I_SYS_ERR] = 0
             if self._board["enable_brake_resistor"]:
                 self._brake_armed = True
-                st.C[0, 0, L.C_BRAKE_ON] = 1.0
+                self._sync_brake()
             self._check_brake_resistance()
         elif self.firmware == "0.5.1":
             self._board_events_051()          # the next check sets BRAKE_RESISTOR_DISARMED again
@@ -683,7 +687,7 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         self._board["enable_brake_resistor"] = bool(value)
         if not value:
             self._brake_armed = False
-            self.st.C[0, 0, L.C_BRAKE_ON] = 0.0
+            self._sync_brake()
         self._check_brake_resistance()
 
     def _save_configuration(self):
@@ -734,7 +738,11 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         return bool(self.st.AI[0, a, L.I_MODE] != L.MODE_IDLE)
 
     def _count_in_cpr(self, a: int) -> int:
-        return int(self.st.AI[0, a, L.I_COUNTS]) % self._axis[a]["cpr"]
+        # encoder.cpp:757: mod(count, cpr) (utils.hpp:154-158); a cpr of 0 the firmware
+        # stores, its mod divides by: read as the count (a Cortex-M's division by 0 is 0)
+        cpr = self._axis[a]["cpr"]
+        count = int(self.st.AI[0, a, L.I_COUNTS])
+        return count % cpr if cpr else count
 
     def _uptime_ms(self) -> int:
         """system_stats.uptime: the FreeRTOS tick count (1 ms) since this boot, uint32."""
@@ -753,7 +761,9 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         return getattr(tree, name)
 
     def __setattr__(self, name, value):
-        if name in ("axis0", "axis1", "config", "vbus_voltage", "error"):
+        tree = self.__dict__.get("_tree")
+        if name in ("axis0", "axis1", "config", "vbus_voltage", "error") or (
+                tree is not None and not name.startswith("_") and name in tree._props):
             if self._handle_boot != self.boot_count:
                 raise DeviceLostError("virtual ODrive: the board rebooted since this connection was made; reconnect")
             setattr(self._tree, name, value)

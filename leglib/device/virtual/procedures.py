@@ -60,15 +60,14 @@ LOOP_STEP = 0.02
 # the host finds the board on USB about then too (firmware.BOOT_TIME)
 THREAD_START_AFTER_RESET = 1.5
 
+# the states that run the current controller on the configured gains
+_FOC_STATES = frozenset({ENCODER_INDEX_SEARCH, ENCODER_OFFSET_CALIBRATION, CLOSED_LOOP_CONTROL, LOCKIN_SPIN,
+                         ENCODER_DIR_FIND, HOMING})
+
 # Axis::default_calibration (axis.cpp:40-52; fw-v0.5.1 axis.cpp:55-67): the finish conditions
 # of the calibration lock-in, which the table does not expose
 CALIBRATION_LOCKIN_FINISH = {"finish_distance": 100.0 * 2.0 * math.pi, "finish_on_vel": False,
                              "finish_on_distance": True, "finish_on_enc_idx": True}
-
-# the commutation a pre-calibrated encoder may have: the twin commutates ideally, which is
-# the board's behaviour only while the stored phase_offset is this board's own (within a
-# twentieth of an electrical period, a 5 % torque loss at most)
-PHASE_OFFSET_TOLERANCE = 1.0 / 20.0
 
 
 def _interpolated_sum(c0: int, c1: int, n: int) -> float:
@@ -143,9 +142,28 @@ class AxisThread:
         if state == SENSORLESS_CONTROL and self.firmware == "0.5.1":
             return ("sensorless control (a lock-in spin to speed, then the flux observer) is not "
                     "modelled: the leg cannot spin freely (hard stops)")
+        if state in _FOC_STATES and not (self.firmware == "0.5.1" and state == ENCODER_OFFSET_CALIBRATION):
+            refusal = self._gains_refusal(a)
+            if refusal is not None:
+                return refusal
         if state == CLOSED_LOOP_CONTROL:
             return self._commutation_refusal(a)
         return None
+
+    def _gains_refusal(self, a: int) -> str | None:
+        """The current controller's gains come from motor.config.phase_resistance and
+        phase_inductance (motor.cpp:297-302). The twin's current loop is the one tuned to
+        its motor: it holds for configured values within the accuracy the firmware's own
+        calibration test accepts (calibration_test.py:48-49: R to 20 %, L to 50 %)."""
+        ax, m = self._axis[a], self.twin.motor
+        if not ax["motor_calibrated"]:
+            return None          # the state is invalid anyway (axis.cpp:509-559)
+        r, ind = ax["phase_resistance"], ax["phase_inductance"]
+        if abs(r / m.phase_resistance - 1.0) <= 0.2 and abs(ind / m.La - 1.0) <= 0.5:
+            return None
+        return (f"motor.config.phase_resistance = {r:.4g} ohm and phase_inductance = {ind:.4g} H set the "
+                f"current controller's gains; this motor has {m.phase_resistance:.4g} ohm and {m.La:.4g} H: a "
+                f"current loop tuned that far off is not modelled; run MOTOR_CALIBRATION")
 
     def _commutation_refusal(self, a: int) -> str | None:
         """The twin's ideal commutation holds for a pre-calibrated encoder only if its
@@ -154,12 +172,13 @@ class AxisThread:
         ax = self._axis[a]
         if not (ax["encoder_ready"] and ax.get("ready_by_index")):
             return None
-        err = self._phase_offset_error(a)
-        if err is None or abs(err) <= PHASE_OFFSET_TOLERANCE:
-            return None
-        return (f"the encoder's stored phase_offset is {err:+.2f} of an electrical period off this "
-                f"motor's (restored from another board?): commutation with it is not modelled; run "
-                f"ENCODER_OFFSET_CALIBRATION")
+        key = "axis*.encoder.config.phase_offset" if self.firmware != "0.5.1" else "axis*.encoder.config.offset"
+        stored = self._settings[a][key]
+        if stored == ax.get("offset_measured"):
+            return None          # the offset this board measured against its index
+        return (f"the encoder's stored phase_offset {stored} is not the one this board measured "
+                f"against its index ({ax.get('offset_measured')}; written or restored from another "
+                f"board?): commutation with it is not modelled; run ENCODER_OFFSET_CALIBRATION")
 
     def _consume_request(self, a: int, value: int):
         ax = self._axis[a]
@@ -240,6 +259,8 @@ class AxisThread:
                 return self._failed(a)
             if not ax["encoder_ready"]:
                 return self._unknown_phase(a)
+            if not (ax["torque_constant"] != 0.0 and math.isfinite(ax["torque_constant"])):
+                return self._modulation_nan(a)
             return None
         return self._invalid_state(a)     # axis.cpp:586-590: any other state
 
@@ -288,6 +309,15 @@ class AxisThread:
         st = self.st
         st.AI[0, a, L.I_MOTOR_ERR] |= MOTOR_ERROR_UNKNOWN_PHASE_ESTIMATE
         st.AI[0, a, L.I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
+        return False
+
+    def _modulation_nan(self, a: int):
+        """torque_constant 0: the torque limit is 0 (motor.cpp:385-393) and the current
+        command 0 / 0; the FOC's modulation is NaN (foc.cpp) and the motor disarms with
+        MODULATION_IS_NAN (0x10000) at the first update."""
+        yield CONTROL_PERIOD
+        self.st.AI[0, a, L.I_MOTOR_ERR] |= 0x10000
+        self.st.AI[0, a, L.I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
         return False
 
     def _run_homing(self, a: int):
@@ -473,6 +503,9 @@ class AxisThread:
         enc["axis*.encoder.config.phase_offset_float" if self.firmware != "0.5.1" else "axis*.encoder.config.offset_float"] = \
             float(residual / steps + 0.5) if steps else 0.5
         ax["encoder_ready"] = True                       # encoder.cpp:449
+        # what a pre-calibrated encoder may use after its index at a later boot: the offset
+        # measured in the index's frame (kept with the configuration)
+        ax["offset_measured"] = offset if ax.get("index_found") else None
         return True
 
     def _encoder_error(self, a: int, error: int):
@@ -481,28 +514,9 @@ class AxisThread:
         self.st.AI[0, a, L.I_AXIS_ERR] |= AXIS_ERROR_ENCODER_FAILED
         self._disarm(a)
 
-    def _phase_offset_error(self, a: int) -> float | None:
-        """How far the stored phase_offset is from this motor's electrical zero in the
-        count frame now, in electrical periods (None: not comparable)."""
-        ax = self._axis[a]
-        pp, cpr = ax["pole_pairs"], ax["cpr"]
-        if not pp or not cpr or cpr != self.twin.axes.cpr or pp != self.twin.motor.pole_pairs:
-            return None
-        key = "axis*.encoder.config.phase_offset" if self.firmware != "0.5.1" else "axis*.encoder.config.offset"
-        stored = self._settings[a][key]
-        period = cpr / pp
-        # the count at electrical angle 0 nearest to the rotor, in the kernel's count frame
-        # (the encoder reads the rotor: the count's turns are the rotor's)
-        zero_turns = self._electrical_lock(a, 0.0)
-        j = self.twin.axes.joint_of_axis(a)
-        rotor_turns = float(self.twin.axes.motor_turns(self.twin.motor_angle(self.st, j)[0], j))
-        count_zero = self._count(a) + (zero_turns - rotor_turns) * cpr
-        e = ((stored - count_zero) / period + 0.5) % 1.0 - 0.5
-        return e
-
     @staticmethod
     def _loop_steps(iterations: int):
-        """The 1 ms iterations of a loop in steps of at most LOOP_STEP."""
+        """The thread's iterations in runs of at most LOOP_STEP."""
         per = max(1, int(round(LOOP_STEP / AXIS_THREAD_PERIOD)))
         while iterations > 0:
             n = min(per, iterations)

@@ -132,6 +132,15 @@ class AxisReadings:
     def _requested_current_range(self, a: int) -> float:
         return float(self._settings[a].get("axis*.motor.config.requested_current_range", 60.0))
 
+    def _set_torque_constant(self, a: int, value: float):
+        """motor.hpp: stored as written. The kernel divides by it (torque to current), so it
+        takes only a finite value that is not zero; with 0 the firmware's torque limit is 0
+        and the current 0/0 (motor.cpp:385-393): the closed loop fails at once
+        (procedures.py), the kernel keeps its last usable value meanwhile."""
+        self._axis[a]["torque_constant"] = value
+        if value != 0.0 and math.isfinite(value):
+            self.st.C[0, a, L.C_KT] = value
+
     def _set_phase_resistance(self, a: int, value: float):
         # motor.hpp:59: the gains follow (p_gain/i_gain read them from the stored values)
         self._axis[a]["phase_resistance"] = value

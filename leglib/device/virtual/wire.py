@@ -41,14 +41,16 @@ from dataclasses import dataclass, field
 from importlib import resources
 
 from odrive.async_tree import AsyncObject
-from odrive.libodrive import DeviceLostException, DeviceType, DiscoveryInfo
+from odrive.hw_version import HwVersion
+from odrive.libodrive import Device, DeviceLostException, DeviceType, DiscoveryInfo, Interface, InterfaceType
 from odrive.runtime_device import RuntimeDevice
 from odrive.sync_tree import SyncObject
 
 from ... import checks
 from ...errors import DeviceLostError, ParameterError
 from ...params import PlantParams, load_plant
-from .firmware import VirtualODrive
+from .board import HW_VERSION as _HW_VERSION
+from .firmware import BOOT_TIME, VirtualODrive
 from .tree import Endpoint, Leaf, UnmodeledError, model_paths
 
 FIRMWARE_TABLES = {"0.5.1": "endpoints_fw-v0.5.1.json", "0.5.6": "endpoints_fw-v0.5.6.json"}
@@ -252,27 +254,100 @@ class _Record:
     lock: threading.RLock = field(default_factory=threading.RLock)
 
 
-class _Interface:
-    """What the client reads from a transport: its type (neither USB nor CAN) and that it is open."""
+class VirtualInterface(Interface):
+    """The virtual ODrives' "USB port": an interface of the client's device manager
+    (``odrive.device_manager``) on which every virtual ODrive of the process is discovered
+    as a USB ODrive is on libusb's -- found when it answers, lost when it resets (a save, a
+    reboot, an erase), found again once it has booted. So the client's own discovery and
+    connection paths run on it: ``device_manager.wait_for``, odrivetool's
+    ``call_rebooting_function`` (restore_config), the liveplotter's recorder.
 
-    interface_type = 0
-    open = True
-    discovering = False
+    All its methods run on the device manager's event loop."""
+
+    def __init__(self):
+        super().__init__(None, InterfaceType.USB, "virtual ODrive")
+        self._handle = 1          # always open: there is no libusb handle behind it
+        self._devices: dict[int, VirtualUSBDevice] = {}
+        self._records: dict[int, _Record] = {}
 
     def __repr__(self):
-        return "Interface(virtual)"
+        return "Interface(virtual ODrive)"
+
+    def close(self):
+        self._delegate = None     # the device manager released it; it stays usable
+
+    def start_discovery(self, delegate):
+        self._delegate = delegate
+        for record in list(self._records.values()):
+            self.sync(record)
+
+    def stop_discovery(self):
+        self._delegate = None
+
+    def _known(self, dev) -> bool:
+        return dev in getattr(self._delegate, "_device_metadata", {})
+
+    def sync(self, record: _Record):
+        """Bring the device manager up to date with ``record``'s device: its old boot lost,
+        its current boot found once the board answers."""
+        self._records[record.serial] = record
+        dev = self._devices.get(record.serial)
+        if dev is not None and not dev.is_present:
+            del self._devices[record.serial]
+            known = self._known(dev)
+            dev._on_lost()
+            if known and self._delegate is not None:
+                self._delegate.on_lost_device(self, dev)
+            dev = None
+        if dev is None and _answers(record):
+            dev = self._devices[record.serial] = VirtualUSBDevice(record, self)
+        if dev is not None and self._delegate is not None and not self._known(dev):
+            self._delegate.on_found_device(self, dev)
+
+    def forget(self, serial: int):
+        self._records.pop(serial, None)
+        dev = self._devices.pop(serial, None)
+        if dev is not None and self._known(dev) and self._delegate is not None:
+            dev._on_lost()
+            self._delegate.on_lost_device(self, dev)
+
+    async def booted(self, record: _Record):
+        """After a reset: let the board boot (its virtual time; real time too when paced)
+        and report it found again, as libusb reports a board that re-enumerates."""
+        loop = asyncio.get_running_loop()
+        await loop.run_in_executor(None, _boot_wait, record)
+        self.sync(record)
 
 
-class VirtualUSBDevice:
-    """A ``odrive.libodrive.Device`` look-alike that answers endpoint ids from the firmware
-    model of one boot of a virtual ODrive.
+def _answers(record: _Record) -> bool:
+    """Whether ``record``'s board answers on USB now (booted, link up)."""
+    sim = record.sim
+    if getattr(sim, "lost", False):
+        return False
+    booted = getattr(sim, "_booted_at", None)
+    return booted is None or sim.time >= booted + BOOT_TIME
+
+
+def _boot_wait(record: _Record):
+    with record.lock:
+        if not getattr(record.sim, "lost", False) and not _answers(record):
+            record.sim.reconnect()
+
+
+class VirtualUSBDevice(Device):
+    """A ``odrive.libodrive.Device`` that answers endpoint ids from the firmware model of
+    one boot of a virtual ODrive (the client's own device class, its libodrive calls
+    replaced by the model).
 
     Parameters
     ----------
-    record : the device record (model, table version, held endpoint values)
+    record : the device record (model, table version)
+    interface : the interface it is found on
     """
 
-    def __init__(self, record: _Record):
+    def __init__(self, record: _Record, interface: VirtualInterface | None = None):
+        info = DiscoveryInfo(device_type=DeviceType.RUNTIME, serial_number=f"{record.serial:012X}")
+        Device.__init__(self, None, 1, info, interface)
         self._record = record
         self._sim = record.sim
         self._boot = _boot_count(record.sim)
@@ -280,11 +355,6 @@ class VirtualUSBDevice:
         self._endpoints = _build_endpoints(record.sim._leaves, record.version)
         self._raw_json, _ = _table_raw(record.version)
         self._crc = _crc16(self._raw_json)
-        self.info = DiscoveryInfo(device_type=DeviceType.RUNTIME, serial_number=f"{record.serial:012X}")
-        self.interface = _Interface()
-        self.hw_version = None
-        self.on_disconnected = None
-        self._connected = False
 
     def __repr__(self):
         return f"VirtualUSBDevice(serial_number={self.info.serial_number}, firmware={self._record.version})"
@@ -297,8 +367,11 @@ class VirtualUSBDevice:
 
     @property
     def is_present(self) -> bool:
-        return (_boot_count(self._sim) == self._boot and self._link == self._record.link
+        return (bool(self._handle) and _boot_count(self._sim) == self._boot and self._link == self._record.link
                 and not getattr(self._sim, "lost", False))
+
+    def drop(self):
+        self._handle = 0
 
     def _alive(self):
         if _boot_count(self._sim) != self._boot:
@@ -318,6 +391,7 @@ class VirtualUSBDevice:
     async def connect(self, node_id=None, baudrate=None) -> None:
         self._alive()
         self._connected = True
+        self.hw_version = HwVersion(*_HW_VERSION)
 
     def disconnect(self):
         self._connected = False
@@ -424,35 +498,91 @@ class VirtualUSBDevice:
 
 
 # ---------------------------------------------------------------------------------------
-# the client's event loop, the registry and find_any
+# the client's device manager, the registry and find_any
 # ---------------------------------------------------------------------------------------
 
-_LOOP = None
-_LOOP_LOCK = threading.Lock()
 _REGISTRY: dict[int, _Record] = {}
 _REGISTRY_LOCK = threading.RLock()
+_INTERFACES: dict[int, VirtualInterface] = {}     # id(device manager) -> its virtual interface
 
 
-def _client_loop() -> asyncio.AbstractEventLoop:
-    """The background event loop the client objects of virtual devices run on."""
-    global _LOOP
-    with _LOOP_LOCK:
-        if _LOOP is None:
-            loop = asyncio.new_event_loop()
-            threading.Thread(target=loop.run_forever, name="leglib-virtual-odrive", daemon=True).start()
-            _LOOP = loop
-    return _LOOP
+def _manager():
+    """The client's global device manager (``odrive.device_manager.get_device_manager``:
+    a background thread with its event loop in a script, the shell's loop in IPython) and
+    the virtual interface registered with it."""
+    from odrive._internal_utils import get_current_loop
+    from odrive.device_manager import get_device_manager
+    loop = get_current_loop()
+    if loop is not None and not hasattr(loop, "_nest_patched"):
+        import odrive._nest_asyncio  # as odrive.find_sync does in a shell
+        odrive._nest_asyncio.apply(loop)
+    dm = get_device_manager()
+    intf = _INTERFACES.get(id(dm))
+    if intf is None:
+        intf = _INTERFACES[id(dm)] = VirtualInterface()
+    return dm, intf
+
+
+def _register(dm, intf: VirtualInterface):
+    """Register the interface with the device manager (again, after it released it when
+    its last device was lost: the client closes an unused interface)."""
+    if intf not in dm._interface_metadata:
+        dm._add_intf(intf, "virtual", lambda i: i.close())
+
+
+def _on_loop(dm, make_coro):
+    from odrive._internal_utils import run_on_loop
+
+    async def run():
+        return await make_coro()
+    return run_on_loop(run(), dm.loop)
+
+
+def _on_reset(sim):
+    """The model's reset hook: tell the device manager, on its loop, that the board went
+    away, and bring it back once it has booted."""
+    with _REGISTRY_LOCK:
+        record = next((r for r in _REGISTRY.values() if r.sim is sim), None)
+    if record is None:
+        return
+    for dm_id, intf in list(_INTERFACES.items()):
+        dm = _dm_alive(dm_id)
+        if dm is None:
+            continue
+        def schedule(intf=intf):
+            intf.sync(record)
+            asyncio.ensure_future(intf.booted(record))
+        try:
+            dm.loop.call_soon_threadsafe(schedule)
+        except RuntimeError:     # the device manager was closed
+            pass
+
+
+def _dm_alive(dm_id: int):
+    import odrive.device_manager as m
+    dm = m._global_device_manager
+    return dm if dm is not None and id(dm) == dm_id else None
 
 
 def _connect_client(record: _Record):
-    """A fresh client object tree over the current boot of ``record``'s device."""
-    device = VirtualUSBDevice(record)
-    fut = asyncio.run_coroutine_threadsafe(RuntimeDevice.from_device(device, json_cache=None), _client_loop())
-    runtime = fut.result()
+    """The client's object over the current boot of ``record``'s device, as the client's
+    device manager finds and connects it."""
+    from odrive.device_manager import RuntimeDevice as _RD
+    dm, intf = _manager()
+    hooks = record.sim.__dict__.setdefault("_reset_hooks", [])
+    if _on_reset not in hooks:
+        hooks.append(_on_reset)
+
+    async def connect():
+        intf.sync(record)           # (a lost device's bookkeeping may release the interface)
+        _register(dm, intf)
+        return await dm.wait_for(interfaces=[intf], serial_number=f"{record.serial:012X}", return_type=_RD)
+    runtime = _on_loop(dm, connect)
     record.handle = runtime.sync_wrapper
-    record.handle_boot = device._boot
-    record.handle_link = device._link
+    record.handle_boot = runtime.device._boot
+    record.handle_link = runtime.device._link
     return record.handle
+
 
 
 def serial_for_seed(seed: int) -> int:
@@ -582,9 +712,21 @@ def _is_runtime(obj) -> bool:
 
 def forget(serial_number=None) -> None:
     """Drop virtual devices from the process registry (all, or one serial number): the
-    next :func:`find_any` builds a fresh one. Old handles keep working on the old model."""
+    next :func:`find_any` builds a fresh one. Their client objects are lost, as a board's
+    when it is unplugged (the client's device manager forgets them)."""
     with _REGISTRY_LOCK:
         if serial_number is None:
+            serials = list(_REGISTRY)
             _REGISTRY.clear()
         else:
-            _REGISTRY.pop(_parse_serial(serial_number), None)
+            serial = _parse_serial(serial_number)
+            serials = [serial] if _REGISTRY.pop(serial, None) is not None else []
+    for dm_id, intf in list(_INTERFACES.items()):
+        dm = _dm_alive(dm_id)
+        if dm is None or not serials:
+            continue
+
+        async def retire(intf=intf):
+            for serial in serials:
+                intf.forget(serial)
+        _on_loop(dm, retire)
