@@ -713,8 +713,8 @@ def test_derived_readings_are_computed():
     (the counters: one per 125 us period), main.cpp:263 (uptime), interface_usb.cpp (USB
     packets), board.cpp:499,573 (task_timers_armed cleared by the next control iteration),
     main.cpp:470-484 (get_interrupt_status: SysTick at priority 15, 1 kHz), low_level.cpp:
-    250-296 (get_adc_voltage: -3.3 V for a pin without ADC channel, the idle UART line
-    3.3 V, a floating input refused), odrive_main.h:184-187 (test_function's counter)."""
+    250-309 (get_adc_voltage: -3.3 V for a pin without ADC channel, the idle UART line
+    at 4095 of 4096 counts, a floating input refused), odrive_main.h:184-187 (test_function's counter)."""
     odrv = _device()
     _calibrate(odrv, (0,))
     ax = odrv.axis0
@@ -738,7 +738,7 @@ def test_derived_readings_are_computed():
     status = odrv.get_interrupt_status(-1)
     assert status & 0xff == 15 and status & 0x80000000
     assert (status >> 8) & 0x7fffff == pytest.approx(odrv.time * 1000, abs=5)
-    assert odrv.get_adc_voltage(6) == -3.3 and odrv.get_adc_voltage(1) == 3.3
+    assert odrv.get_adc_voltage(6) == -3.3 and odrv.get_adc_voltage(1) == pytest.approx(4095 / 4096 * 3.3)
     with pytest.raises(UnmodeledError, match="floating"):
         odrv.get_adc_voltage(3)
     assert odrv.test_function(2) == 2 and odrv.test_function(3) == 5

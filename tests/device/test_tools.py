@@ -92,7 +92,7 @@ def test_restore_config_ui_saves_and_the_client_finds_the_board_again(tmp_path):
     call_rebooting_function (utils.py:290-321): the board resets inside the call
     (main.cpp:176-180), the client's device manager drops it and waits for it by serial
     number; the returned object is the rebooted board with the configuration loaded
-    (user_config_loaded, main.cpp:433-440)."""
+    (user_config_loaded, main.cpp:664-672)."""
     a, c = find_any(seed=403), find_any(seed=404)
     _listing_7_1(a)
     path = tmp_path / "odrive-config.json"
@@ -109,7 +109,7 @@ def test_restore_config_ui_saves_and_the_client_finds_the_board_again(tmp_path):
 
 
 def test_call_rebooting_function_reboot_and_find_any_agree():
-    """utils.py:290-321 with reboot() (main.cpp:197 NVIC_SystemReset): a new object for
+    """utils.py:290-321 with reboot() (odrive_main.h:175, NVIC_SystemReset): a new object for
     the next boot; find_any returns that same boot's object."""
     odrv = find_any(seed=405)
     dm = get_device_manager()
@@ -153,7 +153,7 @@ def test_the_liveplotters_recorder_samples_the_board_through_the_device_manager(
     """The liveplotter reads its properties with a Recorder (recorder.py:113-270)
     subscribed to the client's device manager: read_multiple every 10 ms. On the twin in
     real time the samples are the board's: vbus near the battery's 24 V, the control-loop
-    counter advancing at 8 kHz (n_evt_control_loop, main.cpp:546) against the host's
+    counter advancing at 8 kHz (n_evt_control_loop, main.cpp:366) against the host's
     clock. (The window itself needs a GUI backend; odrive.utils.start_liveplotter from a
     plain script fails in the client 0.6.11 -- run_sync_on_loop passes the coroutine
     function, _internal_utils.py:80-82 -- it works in odrivetool's shell: see

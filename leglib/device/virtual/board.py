@@ -28,7 +28,9 @@ BATTERY_VOLTAGE = 24.0           # [V]
 BATTERY_RESISTANCE = 0.030       # [ohm]
 VBUS_NOISE = 0.05                # [V] rms of the bus measurement (ADC)
 FET_AMBIENT = 25.0               # [degC] the FET thermistors: the bench's ambient (no thermal model)
-ADC_REF = 3.3                    # [V] low_level.cpp:17 adc_ref_voltage
+ADC_REF = 3.3                    # [V] low_level.cpp:27 adc_ref_voltage
+ADC_FULL_SCALE = 4096            # low_level.cpp:26: a 12-bit conversion
+ADC_HIGH = 4095 / ADC_FULL_SCALE * ADC_REF   # a pin at the rail: the largest count (low_level.cpp:304-306)
 
 # error codes of the bus and the brake resistor
 ODRIVE_ERROR_INVALID_BRAKE_RESISTANCE = 0x80     # odrive-interface.yaml ODrive.Error (0.5.6)
@@ -341,17 +343,18 @@ class BoardMixin:
         return int(self._settings[None].get(f"config.gpio{g}_mode", GPIO_DIGITAL))
 
     def _get_adc_voltage(self, gpio: int) -> float:
-        """low_level.cpp:250-296: the ADC reading of the pin; -3.3 V for a pin without an
-        ADC channel (get_adc_relative_voltage_ch returns -1)."""
+        """low_level.cpp:250-309: the ADC reading of the pin, count / 4096 * 3.3 V (a pin
+        at the rail reads 4095 counts); -3.3 V for a pin without an ADC channel
+        (get_adc_relative_voltage_ch returns -1)."""
         g = int(gpio)
         channel = GPIO_PINS[g][0] if 0 <= g < len(GPIO_PINS) else None
         if channel is None:
             return -ADC_REF
         mode = self._gpio_mode(g)
         if mode == GPIO_UART_A:
-            return ADC_REF       # the UART line idles high (TX driven, RX pulled up: main.cpp:739-744)
+            return ADC_HIGH      # the UART line idles high (TX driven, RX pulled up: main.cpp:739-744)
         if mode == GPIO_PULL_UP:
-            return ADC_REF
+            return ADC_HIGH
         if mode == GPIO_PULL_DOWN:
             return 0.0
         raise UnmodeledError(f"odrv.get_adc_voltage({g}): nothing is wired to GPIO{g} on this bench; "

@@ -715,7 +715,7 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         return tree
 
     def _set_motor_pre_calibrated(self, a: int, value: bool):
-        # motor.hpp:54-57
+        # motor.hpp:53-56
         ax = self._axis[a]
         ax["motor_pre_calibrated"] = value
         ax["motor_calibrated"] = ax["motor_calibrated"] or value
