@@ -12,7 +12,7 @@ shape (spread, tail) a real transaction has too; the device and the bus add a ne
 constant part. The virtual ODrive takes the mean of a transaction from a cited measurement
 of the Python client on a v3.x (``plant_*.toml``: usb_latency) and its spread and tail from
 this file: a transaction costs the mean plus a draw of the host's cost less its mean
-(:func:`leglib.device.virtual.firmware.VirtualODrive._latency`). The load of the machine
+(:func:`leglib.device.virtual.transport.latency`). The load of the machine
 at the time is recorded: the tail is the scheduler's, and grows with it.
 """
 
