@@ -149,13 +149,13 @@ def odrivetool(seed: int = 0, firmware: str = "0.5.6", plant: str = "default", n
     ``seed``, paced in real time; the client's device manager looks for ODrives on the
     virtual interface only, so odrv0 is the virtual board and is found again after every
     reboot (save_configuration, restore_config)."""
-    import asyncio
+    import asyncio  # load time: for this command only
 
     async def shell():
         from odrive.device_manager import get_device_manager  # load time: the odrive client, for this command only
-        from odrive.shell import launch_shell, load_default_ns
+        from odrive.shell import launch_shell, load_default_ns  # load time: the odrive client, for this command only
 
-        from ..device.virtual import wire
+        from ..device.virtual import wire  # load time: the device layer, for this command only
         dm = get_device_manager()                      # bound to this loop, as odrivetool's
         wire.find_any(seed=seed, firmware=firmware, plant=plant, realtime=True)
         _, intf = wire._manager()

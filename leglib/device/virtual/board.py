@@ -97,8 +97,8 @@ class BoardMixin:
         """{None|0|1: {generic path: default}} of the Setting rows ``rows`` (the firmware's
         defaults of the board presented; 0 / False where the firmware's struct leaves a
         member value-initialized)."""
-        from .tree import Setting
-        from .wire import firmware_defaults
+        from .tree import Setting  # load time: with the wire's import below, at the first board
+        from .wire import firmware_defaults  # load time: the tables live with the wire (which imports this module)
         defaults = firmware_defaults(self.firmware)
         out = {None: {}, 0: {}, 1: {}}
         for row in rows:
@@ -119,7 +119,7 @@ class BoardMixin:
     def _saved_size(self) -> int:
         """Bytes of the saved configuration: the wire sizes of its endpoints (the firmware's
         own count is the size of its config structs, main.cpp:169-174)."""
-        from .wire import _FORMATS, endpoint_table, flatten
+        from .wire import _FORMATS, endpoint_table, flatten  # load time: the tables live with the wire
         return sum(struct.calcsize("<" + _FORMATS[e["type"]])
                    for path, e in flatten(endpoint_table(self.firmware)).items()
                    if e["type"] in _FORMATS and ".config." in f".{path}.")
@@ -266,7 +266,7 @@ class BoardMixin:
         a, key = (None, args[0]) if len(args) == 1 else args
         if key in self._settings[a]:
             return self._settings[a][key]
-        from .wire import firmware_defaults
+        from .wire import firmware_defaults  # load time: the tables live with the wire
         hit = firmware_defaults(self.firmware).get(key)
         return 0 if hit is None else (hit["axes"][a] if "axes" in hit and a is not None else hit["value"])
 

@@ -364,7 +364,7 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
     def _apply_table_defaults(self):
         """Set every writable configuration row to the firmware's default (its store
         directly: a fresh board, no side effects)."""
-        from .wire import firmware_defaults
+        from .wire import firmware_defaults  # load time: the tables live with the wire (which imports this module)
         defaults = firmware_defaults(self.firmware)
         for row in self.endpoints:
             if not row.active(self.firmware) or row.function or ".config." not in f".{row.path}.":

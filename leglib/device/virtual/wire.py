@@ -328,10 +328,37 @@ def _answers(record: _Record) -> bool:
     return booted is None or sim.time >= booted + BOOT_TIME
 
 
+# [s] of wall time without the virtual clock moving after which the device manager's
+# thread lets a rebooting board's boot pass itself (nobody else is driving the model)
+_IDLE_BOOT_WAIT = 0.5
+
+
 def _boot_wait(record: _Record):
-    with record.lock:
-        if not getattr(record.sim, "lost", False) and not _answers(record):
-            record.sim.reconnect()
+    """Wait (on an executor thread) until ``record``'s board answers again after a reset.
+    Whoever drives the model -- a script's own calls, ``find_any``'s reconnect -- moves its
+    clock through the boot; this thread only watches, so the virtual timeline does not
+    depend on thread timing. Only if the clock stands still for a while (the script waits
+    on the device manager: ``call_rebooting_function``, ``restore_config_ui``, odrivetool's
+    shell) does it let the boot pass itself, under the device's lock."""
+    sim = record.sim
+    still_since, last = _time.monotonic(), sim.time
+    while not getattr(sim, "lost", False) and not _answers(record):
+        now = _time.monotonic()
+        if sim.time != last:
+            still_since, last = now, sim.time
+        elif now - still_since > _IDLE_BOOT_WAIT:
+            with record.lock:
+                if not getattr(sim, "lost", False) and not _answers(record) and sim.time == last:
+                    sim.reconnect()
+            still_since, last = _time.monotonic(), sim.time
+        _time.sleep(0.002)
+
+
+# what the client reads when it connects a device (odrive 0.6.11 runtime_device.py:81-124,
+# attach_metadata; commit_hash and otp_valid are not in a 0.5.x table): the enumeration's
+# own reads, inside the boot's time
+_ATTACH_READS = frozenset({"hw_version_major", "hw_version_minor", "hw_version_variant",
+                           "fw_version_major", "fw_version_minor", "fw_version_revision"})
 
 
 class VirtualUSBDevice(Device):
@@ -392,6 +419,11 @@ class VirtualUSBDevice(Device):
         self._alive()
         self._connected = True
         self.hw_version = HwVersion(*_HW_VERSION)
+        # The client's connection reads the identity once (attach_metadata). The device
+        # manager may run it on its own thread while the script runs on (after a reboot,
+        # rediscovery is asynchronous), so charging it to the virtual clock would make the
+        # numbers depend on thread timing: those reads are free, part of the boot's time.
+        self._attach_pending = set(_ATTACH_READS)
 
     def disconnect(self):
         self._connected = False
@@ -412,6 +444,13 @@ class VirtualUSBDevice(Device):
         return ep
 
     def _read_one(self, ep: _Endpoint):
+        pending = getattr(self, "_attach_pending", ())
+        if ep.path in pending:
+            pending.discard(ep.path)
+            if ep.source == "model":
+                return self._model(lambda: ep.node._props[ep.leaf].get())
+            v = _version_tuple(self._record.version)
+            return {"fw_version_major": v[0], "fw_version_minor": v[1], "fw_version_revision": v[2]}[ep.path]
         if ep.source == "model":
             return self._model(lambda: getattr(ep.node, ep.leaf))
         if ep.source == "identity":
@@ -510,11 +549,11 @@ def _manager():
     """The client's global device manager (``odrive.device_manager.get_device_manager``:
     a background thread with its event loop in a script, the shell's loop in IPython) and
     the virtual interface registered with it."""
-    from odrive._internal_utils import get_current_loop
-    from odrive.device_manager import get_device_manager
+    from odrive._internal_utils import get_current_loop  # load time: the client's device manager
+    from odrive.device_manager import get_device_manager  # load time: the client's device manager
     loop = get_current_loop()
     if loop is not None and not hasattr(loop, "_nest_patched"):
-        import odrive._nest_asyncio  # as odrive.find_sync does in a shell
+        import odrive._nest_asyncio  # load time: only in a shell's running loop (as odrive.find_sync does)
         odrive._nest_asyncio.apply(loop)
     dm = get_device_manager()
     intf = _INTERFACES.get(id(dm))
@@ -531,7 +570,7 @@ def _register(dm, intf: VirtualInterface):
 
 
 def _on_loop(dm, make_coro):
-    from odrive._internal_utils import run_on_loop
+    from odrive._internal_utils import run_on_loop  # load time: the client's device manager
 
     async def run():
         return await make_coro()
@@ -559,7 +598,7 @@ def _on_reset(sim):
 
 
 def _dm_alive(dm_id: int):
-    import odrive.device_manager as m
+    import odrive.device_manager as m  # load time: the client's device manager
     dm = m._global_device_manager
     return dm if dm is not None and id(dm) == dm_id else None
 
@@ -567,7 +606,7 @@ def _dm_alive(dm_id: int):
 def _connect_client(record: _Record):
     """The client's object over the current boot of ``record``'s device, as the client's
     device manager finds and connects it."""
-    from odrive.device_manager import RuntimeDevice as _RD
+    from odrive.device_manager import RuntimeDevice as _RD  # load time: the client's device manager
     dm, intf = _manager()
     hooks = record.sim.__dict__.setdefault("_reset_hooks", [])
     if _on_reset not in hooks:

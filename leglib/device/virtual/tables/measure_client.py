@@ -37,7 +37,7 @@ class _EchoDevice:
     """A device for the client that answers at once (no model behind it)."""
 
     def __init__(self, raw_json: bytes, crc: int):
-        from odrive.libodrive import DeviceType, DiscoveryInfo
+        from odrive.libodrive import DeviceType, DiscoveryInfo  # load time: the maintainer tool only
         self._raw, self._crc = raw_json, crc
         self.info = DiscoveryInfo(device_type=DeviceType.RUNTIME, serial_number="000000000000")
         self.interface = type("I", (), {"interface_type": 0})()
@@ -59,9 +59,9 @@ class _EchoDevice:
 
 def measure(n: int) -> np.ndarray:
     """Per-read cost [s] of ``n`` reads through the client."""
-    from odrive.runtime_device import RuntimeDevice
+    from odrive.runtime_device import RuntimeDevice  # load time: the maintainer tool only
 
-    from ..wire import _crc16, _table_raw
+    from ..wire import _crc16, _table_raw  # load time: the maintainer tool only
     raw, _ = _table_raw("0.5.6")
     loop = asyncio.new_event_loop()
     threading.Thread(target=loop.run_forever, daemon=True).start()
