@@ -23,6 +23,7 @@ from leglib.design.points import identify_many
 from leglib.device.virtual import device_of, find_any
 from leglib.experiments.step import _responses_from_batch
 from leglib.notebook import liveview
+from leglib.params import load_leg
 from leglib.twin.host import Twin
 
 RESULTS = Path(__file__).with_name("results")
@@ -93,7 +94,8 @@ def bench_identify_thesis_grid():
     call (gainmap.identify_many; unstable points are skipped, as in the map); target
     <= 1 s, a quarter of the process-pool least squares it replaces."""
     responses = _thesis_grid_responses()
-    return {**timed(lambda: identify_many(responses), repeat=7), "target_s": 1.0,
+    leg = load_leg("thesis")
+    return {**timed(lambda: identify_many(responses, leg), repeat=7), "target_s": 1.0,
             "points": len(responses), "completed": sum(r.completed for r in responses)}
 
 
@@ -213,7 +215,7 @@ def bench_sweep_map_pipeline():
 
     def run():
         out = dev.sim.step_batch(grid, vel_limit=dev.config.step_vel_limit, abort_error_turns=0.8)
-        gm = lg.GainMap.from_responses(_responses_from_batch(dev, grid, out, 0.4))
+        gm = lg.GainMap.from_responses(_responses_from_batch(dev, grid, out, 0.4), dev.leg)
         gm.gains_for(0.24, 5.0)
     return {**timed(run, repeat=5), "target_s": 5.0, "points": len(grid)}
 

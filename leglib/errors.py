@@ -17,6 +17,7 @@ error                        also a               raised when
 :class:`OutsideRegionError`  ``ValueError``       a target is outside a gain map's region
 :class:`PoleError`           ``ValueError``       poles cannot be placed
 :class:`ExperimentError`     ``RuntimeError``     an experiment cannot run or failed on the device
+:class:`BenchLimitError`     ``RuntimeError``     a run on the leg would take longer than its limit
 :class:`DeviceNotFoundError` ``RuntimeError``     no ODrive answered on USB
 :class:`DeviceLostError`     ``ConnectionError``  the link to the ODrive was lost
 ===========================  ===================  ============================================
@@ -26,7 +27,7 @@ from __future__ import annotations
 
 __all__ = ["LeglibError", "ArgumentError", "ParameterError", "NotebookParameterError", "SpecError", "MeasurementError",
            "ProvenanceError", "DesignFileError", "IdentificationError", "OutsideRegionError", "PoleError",
-           "ExperimentError", "DeviceNotFoundError", "DeviceLostError"]
+           "ExperimentError", "BenchLimitError", "DeviceNotFoundError", "DeviceLostError"]
 
 
 class LeglibError(Exception):
@@ -94,6 +95,11 @@ class PoleError(LeglibError, ValueError):
 
 class ExperimentError(LeglibError, RuntimeError):
     """An experiment could not run (calibration failed, axis error, ...)."""
+
+
+class BenchLimitError(LeglibError, RuntimeError):
+    """A run on the real leg would take longer than the limit it was given; the message gives
+    the estimate and names the limit's parameter (:mod:`leglib.device.bench`)."""
 
 
 class DeviceNotFoundError(LeglibError, RuntimeError):

@@ -6,6 +6,7 @@ import base64
 import io
 import re
 import tempfile
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -181,12 +182,17 @@ def plot_measured_vs_simulated(t, measured, simulated: dict, ax=None, label="q2"
 
 
 def plot_step_identification(t, y, fit, ax=None):
-    """A step response with its second-order fit."""
+    """A step response with its second-order fit; the fit's 90 % intervals of zeta and fn in
+    the legend when it has them (``fit.intervals``)."""
     ax = axes(ax)
     lines = ax.plot(t, y * 1e3, "r-", label="measured")
-    lines += ax.plot(t, fit.response(t) * 1e3, "b--",
-                     label=f"{fit.method}: zeta={fit.zeta:.3f}, fn={fit.fn:.2f} Hz, fd={fit.fd:.2f} Hz, "
-                           f"R^2={fit.r2:.3f}")
+    iv = getattr(fit, "intervals", None)
+    if iv is not None:
+        label = (f"{fit.method}: zeta={iv.text('zeta', fit.zeta, 3)}, fn={iv.text('fn', fit.fn, 2)} Hz "
+                 f"(90 %), R^2={fit.r2:.3f}")
+    else:
+        label = f"{fit.method}: zeta={fit.zeta:.3f}, fn={fit.fn:.2f} Hz, fd={fit.fd:.2f} Hz, R^2={fit.r2:.3f}"
+    lines += ax.plot(t, fit.response(np.asarray(t, float) - t[0]) * 1e3, "b--", label=label)
     ax.set_xlabel("t [s]")
     ax.set_ylabel("foot height y [mm]")
     ax.set_title("Step response and its second-order fit")
@@ -235,7 +241,11 @@ def plot_gain_region(gm, ax=None, targets=None, marker=None, numbered: bool = Tr
     a = gm.achievable()
     arts = [ax.scatter(a.zeta, a.fn, s=2, c="0.75", label="achievable (interpolated between identified points)")]
     ok = gm.status == "ok"
-    arts.append(ax.scatter(gm.zeta[ok], gm.fn[ok], s=14, c="b", label="measured grid points (identified)"))
+    z, f = gm.zeta[ok], gm.fn[ok]
+    zi, fi = gm.zeta_interval[ok], gm.fn_interval[ok]
+    arts.append(ax.errorbar(z, f, xerr=np.abs(zi.T - z), yerr=np.abs(fi.T - f), fmt="none", ecolor="b", alpha=0.25,
+                            lw=0.6))
+    arts.append(ax.scatter(z, f, s=14, c="b", label="measured grid points (identified, 90 % intervals)"))
     hi = float(np.nanmax(a.zeta)) * 1.05 if a.zeta.size else 2.0
     if targets is not None and len(targets):
         t = np.atleast_2d(np.asarray(targets, dtype=float))
@@ -298,40 +308,92 @@ def plot_thesis_peaks(t, reading, ax=None):
                     label=f"findpeaks: {reading.n_peaks} peaks")
     if reading.n_peaks >= 2:
         arts += ax.plot(reading.peak_times[:2], reading.peak_values[:2], "r*", ms=12, label=label)
+    problem = reading.problem
+    if problem:
+        # the failure is part of the legend (its own line, in red): a reading it marks is
+        # not the listing's measurement of the oscillation
+        arts += ax.plot([], [], " ", label="\n".join(_wrap("Listing 7.7 FAILS here: " + problem, 60)))
     ax.set_xlabel("t [s]")
     ax.set_ylabel("-y of Listing 7.7 [m]")
-    ax.legend(fontsize=8)
+    legend = ax.legend(fontsize=8)
+    if problem:
+        legend.get_texts()[-1].set_color("#b00")
     return arts
+
+
+def _wrap(text: str, width: int) -> list[str]:
+    return textwrap.wrap(text, width)
+
+
+#: the fixed axes of the true-measure panel (zeta, fn [Hz]): the region a cascade on this leg
+#: reaches (the twin's thesis-grid map: zeta 0.2-1.3, fn 3-10 Hz) with room; points beyond are
+#: counted on the figure rather than stretching it
+TRUE_AXES = ((0.0, 2.0), (0.0, 15.0))
 
 
 def plot_readings_map(rows, measure: str = "thesis", ax=None, targets=None):
     """Measured grid points of a sweep in one measure (rows of
-    :func:`leglib.thesis.compare_readings`).
+    :func:`leglib.thesis.compare_readings`), on fixed axes; points beyond them are counted
+    in the legend.
 
     ``measure="thesis"``: Listing 7.7's zeta against its 1/(t2 - t1) [Hz], on the thesis's
-    Fig. 6.12 axes (0-1, 0-10 Hz); ``"true"``: the least-squares zeta against fn [Hz].
+    Fig. 6.12 axes (0-1, 0-10 Hz), for the "ok" points whose reading is usable (the first two
+    peaks are the oscillation's); a usable reading on which the listing still fails (more
+    peaks than cycles) is drawn hollow, and the points it fails on outright (fewer than two
+    peaks, a second peak of tail ripple) are counted. ``"true"``: the least-squares zeta
+    against fn [Hz] of the "ok" points with their 90 % intervals, on :data:`TRUE_AXES`.
     ``targets``: dict label -> (zeta, f) drawn as crosses, in the same measure.
     """
     ax = axes(ax)
-    ok = [r for r in rows if r["status"] == "ok" and (measure == "true" or not r["thesis_flagged"])]
+    okr = [r for r in rows if r["status"] == "ok"]
+    arts = []
     if measure == "thesis":
-        x = np.array([r["thesis_zeta"] for r in ok])
-        y = np.array([r["thesis_f_hz"] for r in ok])
-        ax.set_xlim(0, 1)
-        ax.set_ylim(0, 10)
+        (x0, x1), (y0, y1) = (0.0, 1.0), (0.0, 10.0)
+        use = [r for r in okr if r.get("thesis_usable", not r["thesis_flagged"])]
+        clean = [r for r in use if not r.get("thesis_problem")]
+        many = [r for r in use if r.get("thesis_problem")]
+        for group, style in ((clean, {"c": "b"}), (many, {"facecolors": "none", "edgecolors": "tab:orange"})):
+            if not group:
+                continue
+            x = np.array([r["thesis_zeta"] for r in group])
+            y = np.array([r["thesis_f_hz"] for r in group])
+            label = (f"Listing 7.7 readings ({len(group)})" if group is clean else
+                     f"Listing 7.7 fails: more peaks than cycles ({len(group)}; first two peaks the oscillation's)")
+            arts.append(ax.scatter(np.clip(x, x0, x1), np.clip(y, y0, y1), s=12, label=label, **style))
+        failed = len(okr) - len(use)
+        if failed:
+            arts += ax.plot([], [], " ", label=f"{failed} points where Listing 7.7 fails outright (not drawn)")
+        shown = use
+        xs = np.array([r["thesis_zeta"] for r in shown])
+        ys = np.array([r["thesis_f_hz"] for r in shown])
         ax.set_xlabel("zeta by Listing 7.7 [-]")
         ax.set_ylabel("1/(t2 - t1) by Listing 7.7 [Hz]")
     elif measure == "true":
-        x = np.array([r["zeta"] for r in ok])
-        y = np.array([r["fn"] for r in ok])
+        (x0, x1), (y0, y1) = TRUE_AXES
+        shown = okr
+        xs = np.array([r["zeta"] for r in shown])
+        ys = np.array([r["fn"] for r in shown])
+        inside = (xs >= x0) & (xs <= x1) & (ys >= y0) & (ys <= y1)
+        if inside.any():
+            zi = np.array([r["zeta_interval"] for r in shown], float)[inside]
+            fi = np.array([r["fn_interval"] for r in shown], float)[inside]
+            arts.append(ax.errorbar(xs[inside], ys[inside], xerr=np.abs(zi.T - xs[inside]),
+                                    yerr=np.abs(fi.T - ys[inside]), fmt="none", ecolor="b", alpha=0.25, lw=0.6))
+        arts.append(ax.scatter(xs[inside], ys[inside], s=12, c="b",
+                               label=f"measured grid points ({int(inside.sum())}, 90 % intervals)"))
         ax.set_xlabel("zeta, least squares [-]")
         ax.set_ylabel("fn, least squares [Hz]")
     else:
         raise ValueError(f"measure must be 'thesis' or 'true', got {measure!r}")
-    arts = [ax.scatter(x, y, s=12, c="b", label=f"measured grid points ({len(ok)})")]
+    beyond = int(np.sum((xs < x0) | (xs > x1) | (ys < y0) | (ys > y1))) if len(shown) else 0
+    if beyond:
+        where = "drawn at the edge" if measure == "thesis" else "not drawn"
+        arts += ax.plot([], [], " ", label=f"{beyond} beyond the axes (zeta > {x1:g} or f > {y1:g} Hz; {where})")
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
     for (label, (z, f)), style in zip((targets or {}).items(), ["rx", "m+", "g^", "kd"]):
         arts += ax.plot([z], [f], style, ms=10, mew=2, label=label)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=7)
     return arts
 
 
@@ -533,7 +595,10 @@ def plot_design_path(design, ax=None):
     ax.plot([zt], [ft], "g+", ms=12)
     pts = np.array([e.measured for e in design.experiments], float)
     pred = np.array([e.predicted for e in design.experiments], float)
-    ax.plot(pts[:, 0], pts[:, 1], "o-", color="tab:blue", label="measured")
+    iv = np.array([e.intervals for e in design.experiments], float)   # (K, 2 quantities, 2 ends)
+    ax.errorbar(pts[:, 0], pts[:, 1], xerr=np.abs(iv[:, 0, :].T - pts[:, 0]), yerr=np.abs(iv[:, 1, :].T - pts[:, 1]),
+                fmt="none", ecolor="tab:blue", alpha=0.5, lw=0.8)
+    ax.plot(pts[:, 0], pts[:, 1], "o-", color="tab:blue", label="measured (90 % intervals)")
     ax.plot(pred[:, 0], pred[:, 1], "x", color="tab:orange", label="model's prediction")
     for i, (z, f) in enumerate(pts, 1):
         if np.isfinite(z):
@@ -546,8 +611,8 @@ def plot_design_path(design, ax=None):
 
 def plot_design_study(rows, ax=None, limits=(0.05, 0.10)):
     """|relative error| of zeta and fn of every design of
-    :func:`leglib.evaluation.robustness.design_study`, grouped by plant and payload, with the median
-    and worst limits as lines."""
+    :func:`leglib.evaluation.robustness.design_study`, grouped by plant and payload, with their
+    90 % intervals as bars and the median and worst limits as lines."""
     ax = axes(ax)
     groups = list(dict.fromkeys(f"{r.plant}\n{r.payload:g} kg" for r in rows))
     failed_label = True
@@ -557,10 +622,14 @@ def plot_design_study(rows, ax=None, limits=(0.05, 0.10)):
             ax.plot(i, 0.0, "x", color="tab:red", ms=9, label="not prepared (see table)" if failed_label else None)
             failed_label = False
             continue
-        ez = [100 * abs(r.error[0]) for r in rs]
-        ef = [100 * abs(r.error[1]) for r in rs]
-        ax.plot(np.full(len(ez), i - 0.12), ez, "o", color="tab:blue", label="zeta" if i == 0 else None)
-        ax.plot(np.full(len(ef), i + 0.12), ef, "s", color="tab:orange", label="fn" if i == 0 else None)
+        for k, dx, style, color, name in ((0, -0.12, "o", "tab:blue", "zeta"), (1, 0.12, "s", "tab:orange", "fn")):
+            e = np.array([100 * abs(r.error[k]) for r in rs])
+            # the 90 % interval of |measured / target - 1|
+            iv = np.array([[100 * (b / r.target[k] - 1) for b in r.design.intervals[k]] for r in rs])
+            lo = np.where((iv[:, 0] < 0) & (iv[:, 1] > 0), 0.0, np.min(np.abs(iv), axis=1))
+            hi = np.max(np.abs(iv), axis=1)
+            ax.errorbar(np.full(len(e), i + dx), e, yerr=[np.maximum(e - lo, 0), np.maximum(hi - e, 0)], fmt=style,
+                        color=color, ms=5, capsize=2, label=f"{name} (90 % interval)" if i == 0 else None)
     for lim, style, name in zip(limits, ("--", ":"), ("median limit", "worst limit")):
         ax.axhline(100 * lim, color="k", ls=style, lw=1, label=f"{name} {lim:.0%}")
     ax.set_xticks(range(len(groups)), groups, fontsize=8)
@@ -570,27 +639,33 @@ def plot_design_study(rows, ax=None, limits=(0.05, 0.10)):
 
 
 def plot_validation(validation, ax=None):
-    """|relative error| of zeta and fn per target of a :class:`leglib.design.validation.Validation`
-    (targets numbered as its table's rows); a check that is no second-order step is marked at
-    the top with a cross, a target outside the method's answers at the bottom."""
+    """Relative errors of zeta and fn per target of a :class:`leglib.design.validation.Validation`
+    (targets numbered as its table's rows), with their 90 % intervals as bars; a check that
+    is no second-order step is marked at the top with a cross, a target outside the
+    method's answers at the bottom."""
     ax = axes(ax)
-    finite = [abs(x) for r in validation.rows if not r.outside and r.identified for x in r.error]
-    top = 100 * max(finite + [0.01]) * 1.3
+    bounds = [abs(b) for r in validation.rows if not r.outside and r.identified for iv in r.error_interval
+              for b in iv if np.isfinite(b)]
+    top = 100 * max(bounds + [0.01]) * 1.3
     marked = {"failed": False, "outside": False, "ok": False}
     for k, r in enumerate(validation.rows, 1):
         if r.outside:
-            ax.plot(k, 0.0, "v", color="gray", label=None if marked["outside"] else "outside the region")
+            ax.plot(k, -top, "v", color="gray", label=None if marked["outside"] else "outside the region")
             marked["outside"] = True
         elif not r.identified:
             ax.plot(k, top, "x", color="tab:red", ms=9, label=None if marked["failed"] else "not identifiable")
             marked["failed"] = True
         else:
-            ax.plot(k - 0.1, 100 * abs(r.error[0]), "o", color="tab:blue", label=None if marked["ok"] else "zeta")
-            ax.plot(k + 0.1, 100 * abs(r.error[1]), "s", color="tab:orange", label=None if marked["ok"] else "fn")
+            for dx, e, (lo, hi), style, name in ((-0.1, r.error[0], r.error_interval[0], "o", "zeta"),
+                                                 (0.1, r.error[1], r.error_interval[1], "s", "fn")):
+                color = "tab:blue" if name == "zeta" else "tab:orange"
+                ax.errorbar(k + dx, 100 * e, yerr=[[100 * (e - lo)], [100 * (hi - e)]], fmt=style, color=color,
+                            ms=5, capsize=2, label=None if marked["ok"] else f"{name} (90 % interval)")
             marked["ok"] = True
+    ax.axhline(0, color="0.5", lw=0.8)
     ax.set_xticks(range(1, len(validation.rows) + 1))
     ax.set_xlabel("target")
-    ax.set_ylabel("|measured / target - 1| [%]")
+    ax.set_ylabel("measured / target - 1 [%]")
     ax.set_title(f"{validation.method}: error per target")
     ax.legend(fontsize=8)
     return ax

@@ -25,13 +25,16 @@ import numpy as np
 from scipy.optimize import brentq
 
 from . import model as M
+from .design.points import identify_many
+from .design.tuning import AxisModel
 from .errors import IdentificationError
 from .experiments.step import StepResponse
 from .files.sweepdir import read_measurements
 from .identify.fastfit import model
 from .identify.listing77 import ThesisReading
 from .identify.step import second_order
-from .params import LegParams, load_leg
+from .model.cascade import motor_side_inertia
+from .params import SHIPPED_DIR, LegParams, load_leg, load_odrive_config
 
 # ---------------------------------------------------------------------------------------
 # the thesis's targets and results, in the thesis's measure (Listing 7.7)
@@ -177,38 +180,51 @@ def true_from_reading(thesis_zeta: float, thesis_f_hz: float, step_deg: float = 
     return {"zeta": float(z), "fd": fd, "fn": float(fn), "wn": float(2 * math.pi * fn)}
 
 
-def compare_readings(responses) -> list[dict]:
-    """Both measures for every step response: Listing 7.7's reading and the true fit.
+def compare_readings(responses, leg) -> list[dict]:
+    """Both measures for every step response: Listing 7.7's reading and the true fit, the
+    latter classified by the one classifier (:func:`leglib.design.points.identify_many`), so
+    a point is "ok" here exactly when the gain map counts it "ok".
 
     Parameters
     ----------
     responses : iterable of :class:`leglib.experiments.step.StepResponse`
+    leg : the leg's LegParams (the commanded foot heights)
 
     Returns
     -------
-    list of dict: ``gains``, ``status`` ("ok", "unstable", "failed"), ``thesis_zeta``,
-    ``thesis_f_hz`` (1/(t2 - t1)), ``thesis_flagged`` (fewer than two peaks: the listing's
-    constants), ``first_peak_deg`` (:func:`equivalent_angle_deg` of the first peak), ``zeta``,
-    ``fn``, ``fd`` (true, least squares on the foot height), ``reason``
+    list of dict: ``gains``, ``status`` ("ok", "unstable", "failed"), ``reason``;
+    Listing 7.7's ``thesis_zeta``, ``thesis_f_hz`` (1/(t2 - t1)), ``thesis_flagged``
+    (fewer than two peaks: the listing's constants), ``thesis_usable`` (its first two peaks
+    are the oscillation's, :attr:`ThesisReading.usable`), ``thesis_problem`` (why the
+    listing fails on the response, or None), ``thesis_peaks``, ``first_peak_deg``
+    (:func:`equivalent_angle_deg` of the first peak); and for an "ok" point the true
+    ``zeta``, ``fn``, ``fd`` [Hz] (least squares on the foot height) with their 90 %
+    intervals ``zeta_interval``, ``fn_interval``, ``fd_interval`` (NaN otherwise). A failed
+    or unstable point keeps its Listing 7.7 reading (what the thesis's method would have
+    read) but no true numbers.
     """
+    responses = list(responses)
+    points = identify_many(responses, leg)
     out = []
     nan = float("nan")
-    for r in responses:
-        row = {"gains": tuple(float(g) for g in r.gains), "status": "ok", "thesis_zeta": nan,
-               "thesis_f_hz": nan, "thesis_flagged": True, "first_peak_deg": nan,
-               "zeta": nan, "fn": nan, "fd": nan, "reason": ""}
-        if not r.completed:
-            row.update(status="unstable", reason=r.abort_reason or "aborted")
-            out.append(row)
-            continue
-        try:
-            th = read_step(r)
-            row.update(thesis_zeta=th.zeta, thesis_f_hz=th.fd, thesis_flagged=th.flagged,
-                       first_peak_deg=equivalent_angle_deg(th.peak_values[0]) if th.n_peaks else nan)
-            f = second_order(r.t, r.y)
-            row.update(zeta=f.zeta, fn=f.fn, fd=f.fd)
-        except IdentificationError as exc:
-            row.update(status="failed", reason=str(exc))
+    for r, p in zip(responses, points):
+        row = {"gains": tuple(float(g) for g in r.gains), "status": p.status, "reason": p.reason,
+               "thesis_zeta": nan, "thesis_f_hz": nan, "thesis_flagged": True, "thesis_usable": False,
+               "thesis_problem": "not read: the step was aborted" if not r.completed else None,
+               "thesis_peaks": 0, "first_peak_deg": nan, "zeta": nan, "fn": nan, "fd": nan,
+               "zeta_interval": (nan, nan), "fn_interval": (nan, nan), "fd_interval": (nan, nan)}
+        if r.completed:
+            try:
+                th = read_step(r)
+            except IdentificationError as exc:
+                row.update(thesis_problem=f"Listing 7.7 cannot read it: {exc}")
+            else:
+                row.update(thesis_zeta=th.zeta, thesis_f_hz=th.fd, thesis_flagged=th.flagged,
+                           thesis_usable=th.usable, thesis_problem=th.problem, thesis_peaks=th.n_peaks,
+                           first_peak_deg=equivalent_angle_deg(th.peak_values[0]) if th.n_peaks else nan)
+        if p.status == "ok":
+            row.update(zeta=p.zeta, fn=p.fn, fd=p.fd, zeta_interval=p.zeta_interval, fn_interval=p.fn_interval,
+                       fd_interval=p.interval("fd"))
         out.append(row)
     return out
 
@@ -221,13 +237,14 @@ def read_sweep(sweep_dir, leg) -> list[dict]:
     measurements = read_measurements(sweep_dir).measurements
     if not measurements:
         raise ValueError(f"no measurement files in {sweep_dir}")
-    return compare_readings(StepResponse.from_measurements(measurements, leg))
+    return compare_readings(StepResponse.from_measurements(measurements, leg), leg)
 
 
 def nearest_reading(rows: list[dict], zeta: float, f_hz: float) -> dict:
     """The measured point whose Listing 7.7 reading is nearest to (``zeta``, ``f_hz``), in
     distances relative to the request (as Listing 7.8's ``dsearchn``, on the measured points
-    rather than an interpolated map). Points with fewer than two peaks are skipped.
+    rather than an interpolated map). Only "ok" points whose reading is usable (its first two
+    peaks are the oscillation's) are candidates.
 
     Returns
     -------
@@ -235,23 +252,34 @@ def nearest_reading(rows: list[dict], zeta: float, f_hz: float) -> dict:
     """
     best, best_d = None, math.inf
     for r in rows:
-        if r["status"] != "ok" or r["thesis_flagged"] or not np.isfinite(r["thesis_zeta"]):
+        if r["status"] != "ok" or not r["thesis_usable"] or not np.isfinite(r["thesis_zeta"]):
             continue
         d = math.hypot(r["thesis_zeta"] / zeta - 1, r["thesis_f_hz"] / f_hz - 1)
         if d < best_d:
             best, best_d = r, d
     if best is None:
-        raise ValueError("no point with two Listing 7.7 peaks to choose from")
+        raise ValueError("no point with a usable Listing 7.7 reading (two peaks of the oscillation) to choose from")
     return {**best, "distance": best_d}
 
 
 def bias_summary(rows: list[dict]) -> dict:
     """Median and range of Listing 7.7's error against the true values over ``rows``
-    (from :func:`compare_readings`), on the points both measures identify."""
-    ok = [r for r in rows if r["status"] == "ok" and not r["thesis_flagged"] and np.isfinite(r["zeta"])
-          and np.isfinite(r["fd"])]
+    (from :func:`compare_readings`), on the points both measures identify: "ok" for the
+    classifier, a usable reading for the listing, a true zeta below 1 (an fd to compare).
+
+    Returns
+    -------
+    dict: ``points``, the three (min, median, max) relative errors, and the "ok" points the
+    listing fails on, by kind: ``flagged`` (fewer than two peaks), ``ripple`` (its second peak
+    is the tail's ripple), ``many_peaks`` (more peaks than cycles; usable, counted above)
+    """
+    okr = [r for r in rows if r["status"] == "ok"]
+    fails = {"flagged": sum(1 for r in okr if r["thesis_flagged"]),
+             "ripple": sum(1 for r in okr if not r["thesis_flagged"] and not r["thesis_usable"]),
+             "many_peaks": sum(1 for r in okr if r["thesis_usable"] and r["thesis_problem"])}
+    ok = [r for r in okr if r["thesis_usable"] and np.isfinite(r["zeta"]) and np.isfinite(r["fd"])]
     if not ok:
-        return {"points": 0}
+        return {"points": 0, **fails}
     tz = np.array([r["thesis_zeta"] for r in ok])
     z = np.array([r["zeta"] for r in ok])
     tf = np.array([r["thesis_f_hz"] for r in ok])
@@ -260,8 +288,66 @@ def bias_summary(rows: list[dict]) -> dict:
     ez, efd, efn = tz / z - 1, tf / fd - 1, tf / fn - 1
     q = lambda e: [float(np.min(e)), float(np.median(e)), float(np.max(e))]  # noqa: E731
     return {"points": len(ok), "zeta_rel_error_min_median_max": q(ez),
-            "f_vs_fd_rel_error_min_median_max": q(efd), "f_vs_fn_rel_error_min_median_max": q(efn),
-            "flagged": int(sum(1 for r in rows if r["status"] == "ok" and r["thesis_flagged"]))}
+            "f_vs_fd_rel_error_min_median_max": q(efd), "f_vs_fn_rel_error_min_median_max": q(efn), **fails}
+
+
+def listing_reach(rows: list[dict]) -> dict:
+    """What Listing 7.7 reads at most over a sweep's "ok" points with a usable reading: the
+    largest ``thesis_zeta`` and the first peak's largest joint swing [deg] there, the true
+    zeta of the least-damped such point, and how many points there are. The thesis's
+    validated reading (:data:`THESIS_RESULT`) is the number to hold them against."""
+    ok = [r for r in rows if r["status"] == "ok" and r["thesis_usable"]]
+    if not ok:
+        return {"points": 0, "max_thesis_zeta": float("nan"), "max_first_peak_deg": float("nan"),
+                "min_true_zeta": float("nan")}
+    best = max(ok, key=lambda r: r["thesis_zeta"])
+    return {"points": len(ok), "max_thesis_zeta": float(best["thesis_zeta"]),
+            "max_thesis_zeta_gains": list(best["gains"]),
+            "max_first_peak_deg": float(max(r["first_peak_deg"] for r in ok)),
+            "min_true_zeta": float(min(r["zeta"] for r in ok)),
+            "thesis_result_zeta": THESIS_RESULT[0]}
+
+
+def is_thesis_leg(leg: LegParams) -> bool:
+    """True when ``leg`` holds the values of the shipped ``leg_thesis.toml`` (the parameter set
+    built to reproduce eq. 5.11), wherever it was loaded from: eq. 5.11 is that leg's
+    linearization and no other's."""
+    ref = load_leg(SHIPPED_DIR / "leg_thesis.toml")
+    return all(getattr(leg, f) == getattr(ref, f) for f in vars(ref) if not f.startswith("_") and f != "source_file")
+
+
+def chapter5_mismatch(leg: LegParams, gains=FIG_6_9_GAINS, viscous: float | None = None) -> dict:
+    """The chapter-5/6 mismatch in numbers: the damping chapter 5 identified against the
+    damping chapter 6's response shows.
+
+    The model: one cascade axis (:class:`leglib.design.tuning.AxisModel`: position P,
+    velocity PI, current loop and encoder PLL of Listing 7.1's ODrive) on ``leg``'s
+    opening-mode inertia at rest, with the joint's viscous damping ``viscous``
+    [N*m*s/rad] (default ``leg.c11``, chapter 5's 0.098 on the thesis's leg) seen at the
+    motor (viscous 2 pi / gear^2 per turn/s), stepped with ``gains`` (Fig. 6.9's by default)
+    and identified on the foot height. The measurement: the thesis's validated reading
+    (:data:`THESIS_RESULT`, Listing 7.7's measure) as the ideal step that reads so
+    (:func:`true_from_reading`).
+
+    Returns
+    -------
+    dict: ``gains``, ``viscous`` [N*m*s/rad], ``step_deg`` (the step's joint swing [deg]), ``model`` {``zeta``, ``fn`` [Hz]} (NaN when the
+    model's step is no second-order step), ``thesis_result`` {``zeta``, ``f_hz``} (Listing
+    7.7), ``thesis_result_as_true`` {``zeta``, ``fd``, ``fn``} (true measure)
+    """
+    cfg = load_odrive_config("thesis")
+    c = leg.c11 if viscous is None else float(viscous)
+    D = M.mass_matrix(leg, *leg.q0)
+    model = AxisModel(J=motor_side_inertia(float(D[0, 0] - D[0, 1]), leg.gear_ratio),
+                      b=c * 2 * math.pi / leg.gear_ratio ** 2, torque_constant=cfg.torque_constant,
+                      current_bandwidth=cfg.current_control_bandwidth, encoder_bandwidth=cfg.encoder_bandwidth,
+                      leg=leg)
+    zeta, fn = model.predict(tuple(gains))
+    true = true_from_reading(*THESIS_RESULT)
+    return {"gains": [float(g) for g in gains], "viscous": c, "step_deg": STEP_DEG,
+            "model": {"zeta": float(zeta), "fn": float(fn)},
+            "thesis_result": {"zeta": THESIS_RESULT[0], "f_hz": THESIS_RESULT[1]},
+            "thesis_result_as_true": {"zeta": true["zeta"], "fd": true["fd"], "fn": true["fn"]}}
 
 
 # ---------------------------------------------------------------------------------------

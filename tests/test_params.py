@@ -1,6 +1,7 @@
 """Parameter files: shipped sets load in SI; malformed files are rejected by name."""
 
 import math
+import re
 from pathlib import Path
 
 import pytest
@@ -187,3 +188,41 @@ def test_implausible_file_value_is_refused_at_its_line(tmp_path):
     with pytest.raises(ParameterError, match=r"odrive_thesis_bad.toml:4: field 'config.current_lim' = 1e\+09 A is "
                                              r"implausible"):
         load_odrive_config(bad)
+
+
+@pytest.mark.parametrize("old, new, field, value", [
+    ('m3 = { value = 100.0, unit = "g"', 'm3 = { value = 1e9, unit = "g"', "mass.m3", "1e+06 kg"),     # 10^6 kg
+    ('m1 = { value = 55.0,  unit = "g"', 'm1 = { value = 0.05,  unit = "g"', "mass.m1", "5e-05 kg"),
+    ('value = 0.162, unit = "m"', 'value = 1.62e3, unit = "mm"', "geometry.l3", "1.62 m"),   # l3 and l4
+    ('I3 = { value = 2.187e-4,  unit = "kg*m^2"', 'I3 = { value = 2.187,  unit = "kg*m^2"', "inertia.I3",
+     "2.187 kg*m^2"),
+    ('Jd1 = { value = 1.035928e-3, unit = "kg*m^2"', 'Jd1 = { value = 1.035928, unit = "kg*m^2"', "inertia.Jd1",
+     "1.03593 kg*m^2"),
+])
+def test_a_leg_outside_its_class_is_refused_by_file_line_and_field_unless_allowed(tmp_path, old, new, field, value):
+    """Masses, inertias and lengths are checked against a leg of this class (a lower link of
+    10^6 kg loads no more); the named flag allow_implausible loads such a leg on purpose."""
+    bad = _write_variant(tmp_path, old, new)
+    bad.write_text(bad.read_text().replace(old, new))
+    with pytest.raises(ParameterError, match=rf"leg_bad.toml:\d+: field '{field}' = {re.escape(value)} is "
+                                             r"implausible.*allow_implausible=True"):
+        load_leg(bad)
+    leg = load_leg(bad, allow_implausible=True)
+    assert getattr(leg, field.split(".")[1]) == pytest.approx(float(value.split()[0]), rel=1e-5)
+    # a keyword override passes the same check
+    with pytest.raises(ParameterError, match=r"\(keyword override\): field 'mass.m3' = 1e\+06 kg is implausible"):
+        load_leg("thesis", m3=1e6)
+
+
+def test_a_link_inertia_beyond_m_l_squared_is_refused(tmp_path):
+    bad = _write_variant(tmp_path, 'I4 = { value = 2.187e-4', 'I4 = { value = 4e-3')
+    with pytest.raises(ParameterError, match=r"field 'inertia.I4' = 0.004 kg\*m\^2 is implausible: a link's inertia "
+                                             r"about its centre of mass is at most m4 l4\^2"):
+        load_leg(bad)
+    assert load_leg(bad, allow_implausible=True).I4 == 4e-3
+
+
+def test_every_shipped_leg_and_plant_is_plausible():
+    from leglib.params import load_plant, plant_names
+    for name in plant_names():
+        load_plant(name).base_leg()

@@ -237,3 +237,48 @@ def test_foot_mass_is_the_operational_space_inertia():
     ydd = J @ np.linalg.solve(D, J.T @ np.array([0.0, 1.0]))
     assert m == pytest.approx(1 / ydd[1], rel=1e-6)
     assert 0.1 < m < 20
+
+
+def test_listing_7_7_says_where_it_fails():
+    """Its failures are named, never shown as readings: the listing's constants (fewer than
+    two peaks), a second peak that is ripple of the settled tail, and more peaks than an
+    oscillation at its own frequency has (the quantized tail's ripple counted as peaks)."""
+    # an ideal step: two genuine peaks, no more than its cycles
+    r = T.ideal_reading(0.1, 5.0)
+    assert r.usable and r.problem is None
+    # a well-damped step with the encoder's quantization: its tail's ripple has "peaks"
+    t = np.arange(750) * 0.002
+    rng = np.random.default_rng(0)
+    a = _model(t, 0.8, 50.0, T.STEP_DEG, 0.0, 0.0) + 0.02 * rng.standard_normal(t.size)
+    a = np.round(a / 0.03) * 0.03                  # the listing's degrees, one count of 0.03 deg
+    y = M.thesis_listing_height(a, -a)
+    q = second_order(t, y, method="thesis")
+    assert q.n_peaks >= 2 and not q.usable and "ripple" in q.problem
+    # many peaks after two genuine ones: usable, but the listing's assumption fails
+    a = _model(t, 0.3, 40.0, T.STEP_DEG, 0.0, 0.0)
+    a = np.round(a / 0.03) * 0.03 + 0.03 * (np.arange(t.size) % 8 < 4) * (t > 0.8)
+    m = second_order(t, M.thesis_listing_height(a, -a), method="thesis")
+    assert m.n_peaks > (t[-1] - m.peak_times[0]) * m.fd + 2
+    assert m.usable and "findpeaks finds" in m.problem
+    # the listing's constants
+    flat = second_order(t, M.thesis_listing_height(np.linspace(0, 48, t.size), -np.linspace(0, 48, t.size)),
+                        method="thesis")
+    assert flat.flagged and not flat.usable and "fewer than two peaks" in flat.problem
+
+
+def test_bias_and_reach_use_only_what_both_measures_identify():
+    rows = [{"gains": (1, 1, 1), "status": "ok", "thesis_zeta": 0.04, "thesis_f_hz": 5.0, "thesis_flagged": False,
+             "thesis_usable": True, "thesis_problem": None, "first_peak_deg": 55.0, "zeta": 0.3, "fn": 5.3,
+             "fd": 5.05},
+            {"gains": (2, 1, 1), "status": "ok", "thesis_zeta": 0.9, "thesis_f_hz": 40.0, "thesis_flagged": False,
+             "thesis_usable": False, "thesis_problem": "ripple", "first_peak_deg": 50.0, "zeta": 0.9, "fn": 9.0,
+             "fd": 3.9},
+            {"gains": (3, 1, 1), "status": "failed", "thesis_zeta": 0.5, "thesis_f_hz": 2.0, "thesis_flagged": False,
+             "thesis_usable": True, "thesis_problem": None, "first_peak_deg": 70.0, "zeta": math.nan,
+             "fn": math.nan, "fd": math.nan}]
+    b = T.bias_summary(rows)
+    assert b["points"] == 1 and b["ripple"] == 1 and b["flagged"] == 0
+    assert b["zeta_rel_error_min_median_max"][1] == pytest.approx(0.04 / 0.3 - 1)
+    reach = T.listing_reach(rows)
+    assert reach["points"] == 1 and reach["max_thesis_zeta"] == 0.04 and reach["max_first_peak_deg"] == 55.0
+    assert T.nearest_reading(rows, 0.24, 5.0)["gains"] == (1, 1, 1)

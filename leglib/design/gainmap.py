@@ -88,23 +88,35 @@ def harmonic_fill(values: np.ndarray, known: np.ndarray) -> np.ndarray:
 
 @dataclass
 class Achievable:
-    """Fine-grid points the map can deliver: gains (M, 3), zeta (M,), fn (M,) [Hz]."""
+    """Fine-grid points the map can deliver: gains (M, 3), zeta (M,), fn (M,) [Hz], and
+    their 90 % intervals ``zeta_interval``, ``fn_interval`` (M, 2) (:meth:`GainMap.fine`)."""
 
     gains: np.ndarray
     zeta: np.ndarray
     fn: np.ndarray
+    zeta_interval: np.ndarray = None
+    fn_interval: np.ndarray = None
 
 
 @dataclass
 class Choice:
     """Answer of :meth:`GainMap.nearest`: gains (pos_gain, vel_gain, vel_integrator_gain),
-    the map's zeta and fn [Hz] there, and ``distance``, the larger of the relative
-    distances in zeta and in fn to the request (max(|log(zeta/zeta_req)|, |log(fn/fn_req)|))."""
+    the map's zeta and fn [Hz] there with their 90 % intervals (``zeta_interval``,
+    ``fn_interval``: the measured neighbours' intervals interpolated, widened by the
+    interpolation's own doubt), and ``distance``, the larger of the relative distances in
+    zeta and in fn to the request (max(|log(zeta/zeta_req)|, |log(fn/fn_req)|))."""
 
     gains: tuple
     zeta: float
     fn: float
     distance: float
+    zeta_interval: tuple = (math.nan, math.nan)
+    fn_interval: tuple = (math.nan, math.nan)
+
+    def text(self) -> str:
+        """"zeta 0.240 [0.16, 0.32], fn 5.01 [4.5, 5.6] Hz" (the map's prediction)."""
+        (zl, zh), (fl, fh) = self.zeta_interval, self.fn_interval
+        return f"zeta {self.zeta:.3f} [{zl:.3f}, {zh:.3f}], fn {self.fn:.2f} [{fl:.2f}, {fh:.2f}] Hz"
 
     def within(self, tolerance: float = TOLERANCE) -> bool:
         """True when the point is within ``tolerance`` (relative) of the request."""
@@ -118,6 +130,8 @@ class GainMap:
     ----------
     axes : (pos_gain values, vel_gain values, vel_integrator_gain values), sorted
     zeta, wn : arrays of shape (len(pos), len(vel), len(vint)); NaN where not identified
+    zeta_interval, fn_interval : same shape + (2,): each identified point's 90 % interval
+        (low, high) of zeta and of fn [Hz]; NaN where not identified
     status : same shape, one of "ok", "unstable", "failed", "missing"
     """
 
@@ -130,19 +144,25 @@ class GainMap:
         self.zeta = np.full(shape, np.nan)
         self.wn = np.full(shape, np.nan)
         self.status = np.full(shape, STATUS_MISSING, dtype=object)
+        self.zeta_interval = np.full(shape + (2,), np.nan)
+        self.fn_interval = np.full(shape + (2,), np.nan)
         self.points = points
         cells = zip(*(np.searchsorted(ax, G[:, k]).tolist() for k, ax in enumerate(self.axes)))
         for i, p in zip(cells, points):
             self.status[i] = p.status
             if p.status == STATUS_OK:
                 self.zeta[i], self.wn[i] = p.zeta, p.wn
+                self.zeta_interval[i], self.fn_interval[i] = p.zeta_interval, p.fn_interval
         self._fine = None
 
     # -- construction --------------------------------------------------------------------
     @classmethod
-    def from_responses(cls, responses, method: str = "fit", workers: int | None = None) -> "GainMap":
-        """From :class:`leglib.experiments.step.StepResponse` objects (identified in parallel)."""
-        return cls(identify_many(responses, method, workers))
+    def from_responses(cls, responses, leg, method: str = "fit", workers: int | None = None) -> "GainMap":
+        """From :class:`leglib.experiments.step.StepResponse` objects of the leg ``leg``
+        (LegParams or a parameter-set name: the commanded foot heights), identified in one
+        compiled batch (:func:`leglib.design.points.identify_many`)."""
+        leg = load_leg(leg) if isinstance(leg, (str, Path)) else leg
+        return cls(identify_many(responses, leg, method, workers))
 
     @classmethod
     def from_measurements(cls, paths_or_dir, leg="thesis", method: str = "fit", progress: bool = False,
@@ -155,8 +175,6 @@ class GainMap:
         Two files with the same gains are an error naming both: a map cell holds one
         measurement.
         """
-
-
         leg = load_leg(leg) if isinstance(leg, (str, Path)) else leg
         measurements = read_measurements(paths_or_dir, strict=strict).measurements
         if not measurements:
@@ -171,7 +189,7 @@ class GainMap:
                                               f"a map cell holds one measurement; move one away")
             seen[key] = m.where
         with tqdm(total=len(measurements), desc="identify", unit="file", disable=not progress) as bar:
-            points = identify_many(StepResponse.from_measurements(measurements, leg), method)
+            points = identify_many(StepResponse.from_measurements(measurements, leg), leg, method)
             bar.update(len(points))
         return cls(points)
 
@@ -220,7 +238,11 @@ class GainMap:
         the grid cell holding the point has a corner that is not "ok" (unstable, failed or
         missing: the value there would rest on filled-in numbers, not on measurements),
         where cubic and linear interpolation disagree by more than AGREEMENT (the grid
-        cannot resolve the map there), or where the value is non-physical.
+        cannot resolve the map there), or where the value is non-physical; and
+        ``zeta_interval``, ``fn_interval`` (shape + (2,)): 90 % intervals, the identified
+        points' relative half-widths below and above (in log) interpolated linearly like the
+        values, each widened by the disagreement of cubic and linear interpolation there
+        (added in quadrature, in log).
         """
         key = tuple(points_per_axis)
         if self._fine is not None and self._fine["key"] == key:
@@ -264,7 +286,26 @@ class GainMap:
         wl = np.exp(interp(np.log(wn), "linear")).reshape(full)
         trusted = (np.abs(z - zl) <= AGREEMENT * np.abs(zl)) & (np.abs(w - wl) <= AGREEMENT * np.abs(wl))
         valid = (stab > 1 - 1e-9) & corner_ok & trusted & (z > 0) & (w > 0) & np.isfinite(z) & np.isfinite(w)
-        self._fine = {"key": key, "axes": fine_axes, "zeta": z, "fn": w / (2 * math.pi), "valid": valid}
+        fn = w / (2 * math.pi)
+        known = self.status == STATUS_OK
+        bounds = {}
+        for name, value, iv, lin in (("zeta", z, self.zeta_interval, zl), ("fn", fn, self.fn_interval,
+                                                                          wl / (2 * math.pi))):
+            est = self.zeta if name == "zeta" else self.fn
+            extra = np.log(value / lin) ** 2        # the interpolation's own doubt, in log
+            sides = []
+            for k in (0, 1):
+                # log of value / low and of high / value; a low end clipped at zero counts as
+                # a factor of 10 (the interval reaches far down: more would only let one
+                # ill-defined neighbour swamp the interpolation)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    r = np.abs(np.log(np.where(known, np.maximum(iv[..., k], est * 0.1), 1.0) / est))
+                r = np.where(known & np.isfinite(r), r, 0.0)
+                filled = harmonic_fill(r, known) if known.any() else r
+                sides.append(np.sqrt(np.maximum(interp(filled, "linear").reshape(full), 0.0) ** 2 + extra))
+            bounds[name] = np.stack([value * np.exp(-sides[0]), value * np.exp(sides[1])], axis=-1)
+        self._fine = {"key": key, "axes": fine_axes, "zeta": z, "fn": fn, "valid": valid,
+                      "zeta_interval": bounds["zeta"], "fn_interval": bounds["fn"]}
         return self._fine
 
     def achievable(self, **kw) -> Achievable:
@@ -275,7 +316,8 @@ class GainMap:
             gains = np.column_stack([a[i] for a, i in zip(f["axes"], np.nonzero(v))])
         else:
             gains = np.stack(np.meshgrid(*f["axes"], indexing="ij"), axis=-1)[v]
-        return Achievable(gains=gains, zeta=f["zeta"][v], fn=f["fn"][v])
+        return Achievable(gains=gains, zeta=f["zeta"][v], fn=f["fn"][v], zeta_interval=f["zeta_interval"][v],
+                          fn_interval=f["fn_interval"][v])
 
     # -- inverse -------------------------------------------------------------------------
     def _tree(self):
@@ -308,7 +350,8 @@ class GainMap:
         tree, a = self._tree()
         d, i = tree.query(np.log([zeta, fn]), p=np.inf)
         c = Choice(gains=tuple(float(x) for x in a.gains[i]), zeta=float(a.zeta[i]), fn=float(a.fn[i]),
-                   distance=float(d))
+                   distance=float(d), zeta_interval=tuple(map(float, a.zeta_interval[i])),
+                   fn_interval=tuple(map(float, a.fn_interval[i])))
         if tolerance is not None and not c.within(tolerance):
             raise OutsideRegionError((zeta, fn), c, tolerance)
         return c

@@ -24,7 +24,10 @@ leg has compliant belts, cogging, a nonlinear encoder and friction no model here
    go back halfway towards the best identified experiment.
 4. **Stop** when an experiment's measured zeta and fn are both within ``tolerance`` of the
    target (that experiment is the final check), or after ``max_experiments``: the result
-   then holds the best experiment and says that the target was not reached.
+   then holds the best experiment and says that the target was not reached. The target
+   counts as *reached* only when the final check's 90 % intervals of zeta and fn lie within
+   the tolerance (:func:`leglib.design.validation.verdict`); where they are wider than the
+   tolerance (the response's model error exceeds it) the result says so.
 
 Units: pos_gain [(turn/s)/turn], vel_gain [N*m/(turn/s)], vel_integrator_gain [N*m/turn],
 fn [Hz], J [N*m/(turn/s^2)], b [N*m/(turn/s)] at the motor.
@@ -39,6 +42,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .. import checks, plots
+from ..device import bench
 from ..device.session import as_device, check_gains
 from ..errors import ArgumentError, IdentificationError
 from ..experiments.step import step_response
@@ -48,6 +52,7 @@ from ..model.drive import AxisMap
 from ..model.dynamics import mass_matrix
 from ..model.kinematics import foot_position
 from .points import identify_response
+from .validation import verdict
 
 #: default relative error in zeta and fn at which a design stops
 TOLERANCE = 0.02
@@ -249,6 +254,12 @@ class Experiment:
         se = standard_errors(self.result.fit, self.response.t, self.response.y)
         return (se["zeta"], se["fn"])
 
+    @property
+    def intervals(self) -> tuple:
+        """90 % intervals ((zeta low, high), (fn low, high) [Hz]) of the measured values
+        (NaN when the step was not identified)."""
+        return (self.result.zeta_interval, self.result.fn_interval)
+
 
 @dataclass
 class Tuning:
@@ -256,9 +267,10 @@ class Tuning:
 
     ``gains`` (pos_gain, vel_gain, vel_integrator_gain) of the final check, ``predicted``
     the final model's (zeta, fn [Hz]) for them, ``measured`` the final check's identified
-    (zeta, fn) and ``uncertainty`` their standard errors, ``experiments`` every step run (the final check last), ``reached`` whether
-    the measured values are within ``tolerance`` of ``target``; ``model`` the final
-    :class:`AxisModel`."""
+    (zeta, fn) and ``uncertainty`` their standard errors, ``intervals`` their 90 % intervals,
+    ``experiments`` every step run (the final check last), ``reached`` whether the measured
+    values' intervals lie within ``tolerance`` of ``target`` (``verdict`` says why or why
+    not); ``model`` the final :class:`AxisModel`."""
 
     target: tuple
     gains: tuple
@@ -269,12 +281,26 @@ class Tuning:
     tolerance: float
     model: AxisModel = field(repr=False)
     message: str = ""
+    verdict: str = ""
+    #: what the design did on the leg and its bench time (:class:`leglib.device.bench.BenchReport`;
+    #: on the twin: what it would take on the leg)
+    bench: object = field(default=None, repr=False)
+
+    def _final(self):
+        return next((e for e in reversed(self.experiments) if e.gains == self.gains), None)
 
     @property
     def uncertainty(self) -> tuple:
         """Standard errors (zeta, fn [Hz]) of ``measured`` (the final check's fit)."""
-        final = next((e for e in reversed(self.experiments) if e.gains == self.gains), None)
+        final = self._final()
         return final.uncertainty if final is not None else (math.nan, math.nan)
+
+    @property
+    def intervals(self) -> tuple:
+        """90 % intervals ((zeta low, high), (fn low, high) [Hz]) of ``measured``."""
+        final = self._final()
+        nan = (math.nan, math.nan)
+        return final.intervals if final is not None else (nan, nan)
 
     @property
     def error(self) -> tuple:
@@ -300,18 +326,19 @@ class Tuning:
 
     def __str__(self) -> str:
         ez, ef = self.error
+        (zl, zh), (fl, fh) = self.intervals
         head = (f"target zeta {self.target[0]:.3g}, fn {self.target[1]:.3g} Hz: "
                 f"{'reached' if self.reached else 'NOT reached'} in {len(self.experiments)} experiments; "
                 f"gains ({', '.join(f'{g:.4g}' for g in self.gains)}), measured zeta {self.measured[0]:.3f} "
-                f"± {self.uncertainty[0]:.3f} ({ez:+.1%}), fn {self.measured[1]:.2f} ± {self.uncertainty[1]:.2f} Hz "
-                f"({ef:+.1%})")
-        return head + (f"\n{self.message}" if self.message else "")
+                f"[{zl:.3f}, {zh:.3f}] ({ez:+.1%}), fn {self.measured[1]:.2f} [{fl:.2f}, {fh:.2f}] Hz "
+                f"({ef:+.1%}) (90 % intervals)")
+        return head + "".join(f"\n{m}" for m in (self.verdict, self.message) if m)
 
     def _repr_markdown_(self) -> str:
-        rows = ["| # | role | gains (pos, vel, vel_int) | predicted (ζ, fn [Hz]) | measured (ζ, fn [Hz]) |",
+        rows = ["| # | role | gains (pos, vel, vel_int) | predicted (ζ, fn [Hz]) | measured [90 % interval] |",
                 "|---|---|---|---|---|"]
         for i, e in enumerate(self.experiments, 1):
-            meas = f"({e.measured[0]:.3f}, {e.measured[1]:.2f})" if e.ok else e.result.status
+            meas = e.result.text() if e.ok else e.result.status
             rows.append(f"| {i} | {e.role} | ({e.gains[0]:.3f}, {e.gains[1]:.4f}, {e.gains[2]:.4f}) | "
                         f"({e.predicted[0]:.3f}, {e.predicted[1]:.2f}) | {meas} |")
         return str(self).replace("\n", "\n\n") + "\n\n" + "\n".join(rows)
@@ -349,7 +376,7 @@ def _check_arguments(zeta, fn, max_experiments, tolerance, payload_guess, start,
 def tune(odrv, zeta: float, fn: float, max_experiments: int = 10, *, vel_integrator_gain: float = 0.01,
            tolerance: float = TOLERANCE, payload_guess: float = 0.0, step: float = 0.4,
            duration: float = 1.5, sample_period: float = 0.002, start=None, progress: bool = False,
-           on_experiment=None) -> Tuning:
+           on_experiment=None, max_minutes: float | None = None) -> Tuning:
     """Gains that give the leg on ``odrv`` the step dynamics (``zeta``, ``fn`` [Hz]) of its
     foot height, found with at most ``max_experiments`` step responses on the device.
 
@@ -369,13 +396,18 @@ def tune(odrv, zeta: float, fn: float, max_experiments: int = 10, *, vel_integra
         the configuration's maxima
     progress : print one line per experiment
     on_experiment : called as ``on_experiment(experiment)`` after each step (None: not called)
+    max_minutes : on a real leg, the longest the design may take [min] (default
+        :data:`leglib.device.bench.DEFAULT_MAX_BENCH_MINUTES`): refused before the first step
+        (:class:`leglib.errors.BenchLimitError`, giving the estimate) when ``max_experiments``
+        steps would take longer; on the twin nothing is refused
 
     Every argument is checked before the first step runs on the device (:class:`leglib.errors.ArgumentError`, a ValueError, naming it).
 
     Returns
     -------
     :class:`Tuning`; ``reached`` is False (and ``message`` says why) when the budget ran out
-    first, and then ``gains`` are the best experiment's.
+    first, and then ``gains`` are the best experiment's; ``bench`` says what it did on the
+    leg and its bench time (on the twin: what it would take on the leg).
     """
 
     payload_guess, start = _check_arguments(zeta, fn, max_experiments, tolerance, payload_guess, start, progress,
@@ -387,13 +419,16 @@ def tune(odrv, zeta: float, fn: float, max_experiments: int = 10, *, vel_integra
         check_gains(cfg, start[0], start[1], vel_integrator_gain)
     target = (float(zeta), float(fn))
     bounds = ((0.5, float(cfg.max_pos_gain)), (1e-3, float(cfg.max_vel_gain)))
+    bench.require(dev, max_experiments * bench.step_seconds(duration, bench.STEP_SETTLE, sample_period), max_minutes,
+                  f"tune: up to {max_experiments} steps")
     model = nominal_model(dev, payload_guess, step, duration, sample_period)
     experiments: list[Experiment] = []
+    since = bench.mark(dev)
 
     def run(gains, role, predicted):
         resp = step_response(dev, *gains, step=step, duration=duration, sample_period=sample_period)
         e = Experiment(tuple(float(g) for g in gains), role, tuple(map(float, predicted)), resp,
-                       identify_response(resp))
+                       identify_response(resp, dev.leg))
         experiments.append(e)
         if progress:
             m = e.measured
@@ -442,10 +477,12 @@ def tune(odrv, zeta: float, fn: float, max_experiments: int = 10, *, vel_integra
         e = run(nxt, "correction", model.predict(nxt))
     good = [x for x in experiments if x.ok]
     final = e if within(e) else (min(good, key=distance) if good else experiments[-1])
-    reached = within(final)
-    message = "" if reached else (
+    # reached only when the final check's intervals allow it, not its point values alone
+    reached, why = verdict(*final.intervals, target, tolerance) if final.ok else (False, "")
+    message = "" if within(final) else (
         f"the target was not reached within {max_experiments} experiments (tolerance {tolerance:.0%}); the gains "
         f"are the best experiment's" + ("" if good else "; no experiment could be identified"))
     pred = model.predict(final.gains)
     return Tuning(target=target, gains=final.gains, predicted=pred, measured=final.measured,
-                  experiments=experiments, reached=reached, tolerance=tolerance, model=model, message=message)
+                  experiments=experiments, reached=reached, tolerance=tolerance, model=model, message=message,
+                  verdict=why, bench=bench.report(since, dev))

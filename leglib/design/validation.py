@@ -7,7 +7,12 @@ gains on the leg, identified; the relative errors. One routine for every consume
 - a step that is not a second-order step (the one classifier,
   :func:`leglib.design.points.identify_response`, says ``failed`` or ``unstable``) is *not
   identifiable*: its error is infinite, so a method's worst error says so, and it is
-  counted; it is never dropped, never given numbers.
+  counted; it is never dropped, never given numbers;
+- an identified check's error is an interval: its 90 % intervals of zeta and fn relative to
+  the target (:attr:`TargetResult.error_interval`). A target counts as reached within a
+  tolerance only when both intervals lie inside it (:func:`verdict`), and when an interval
+  is wider than the tolerance itself (the response's model error is larger than the
+  tolerance) the verdict says so instead of calling it reached or missed.
 """
 
 from __future__ import annotations
@@ -18,9 +23,34 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import plots
+from ..device.session import as_device
 from ..errors import OutsideRegionError
 from ..experiments.step import step_response
 from .points import STATUS_OK, identify_response
+
+
+def verdict(zeta_interval, fn_interval, target, tolerance: float) -> tuple[bool, str]:
+    """Whether measured 90 % intervals of (zeta, fn [Hz]) put ``target`` (zeta, fn) reached
+    within ``tolerance`` (relative): True only when both intervals lie inside
+    target x (1 +- tolerance). Returns (reached, why) with why a sentence: reached; the
+    interval that reaches beyond the tolerance; or, when an interval's half-width is larger
+    than the tolerance itself, that the response's uncertainty (its model error included)
+    is larger than the tolerance, so reaching it cannot be told."""
+    wide, beyond = [], []
+    for name, (lo, hi), t in (("zeta", zeta_interval, target[0]), ("fn", fn_interval, target[1])):
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            return False, f"{name} has no interval (the check is not a second-order step)"
+        if (hi - lo) / 2 > tolerance * t:
+            wide.append(f"{name} to +-{(hi - lo) / 2 / t:.1%} of the target")
+        elif lo < t * (1 - tolerance) or hi > t * (1 + tolerance):
+            beyond.append(f"{name} [{lo:.3g}, {hi:.3g}] reaches beyond +-{tolerance:.1%} of {t:.3g}")
+    if wide:
+        return False, (f"the 90 % intervals hold {' and '.join(wide)}, more than the tolerance "
+                       f"(+-{tolerance:.1%}): the model error of this response is larger than the tolerance, so "
+                       f"whether the target is reached cannot be told")
+    if beyond:
+        return False, f"not reached: {'; '.join(beyond)} (90 % interval)"
+    return True, f"reached: both 90 % intervals lie within +-{tolerance:.1%} of the target"
 
 
 @dataclass
@@ -61,6 +91,32 @@ class TargetResult:
             return (math.inf, math.inf)
         return (self.measured.zeta / self.target[0] - 1.0, self.measured.fn / self.target[1] - 1.0)
 
+    @property
+    def error_interval(self) -> tuple[tuple, tuple]:
+        """The 90 % intervals of the relative errors ((zeta low, high), (fn low, high)): the
+        check's intervals relative to the target (NaN where :attr:`error` is not finite)."""
+        if not self.identified:
+            nan = (math.nan, math.nan)
+            return (nan, nan)
+        return tuple(tuple(b / t - 1.0 for b in iv) for iv, t in
+                     ((self.measured.zeta_interval, self.target[0]), (self.measured.fn_interval, self.target[1])))
+
+    @property
+    def worst_bound(self) -> float:
+        """The largest |relative error| the intervals allow (inf when not identifiable, NaN
+        outside)."""
+        if self.outside or self.measured is None:
+            return math.nan
+        if not self.identified:
+            return math.inf
+        return float(max(abs(b) for iv in self.error_interval for b in iv))
+
+    def reached(self, tolerance: float) -> tuple[bool, str]:
+        """:func:`verdict` of the check against the target within ``tolerance``."""
+        if not self.identified:
+            return False, "the check is not a second-order step" if self.measured is not None else "no check"
+        return verdict(self.measured.zeta_interval, self.measured.fn_interval, self.target, tolerance)
+
 
 @dataclass
 class Validation:
@@ -72,11 +128,14 @@ class Validation:
     rows : list of :class:`TargetResult`, one per target
     setup_experiments : steps spent before any target (a sweep for the map, the fitting steps
         of a model)
+    tolerance : the relative tolerance a target counts as reached within (:func:`verdict`,
+        the check's 90 % intervals inside it), or None: no verdicts
     """
 
     method: str
     rows: list = field(default_factory=list)
     setup_experiments: int = 0
+    tolerance: float | None = None
 
     @property
     def errors(self) -> np.ndarray:
@@ -90,39 +149,62 @@ class Validation:
         return self.setup_experiments + sum(r.experiments for r in self.rows)
 
     def summary(self) -> dict:
-        """Median and worst absolute relative errors (of zeta, of fn, of both), the targets
-        answered, outside and not identifiable, the experiments."""
+        """Median and worst absolute relative errors (of zeta, of fn, of both), the largest
+        error any check's 90 % interval allows (``worst_bound``), each answered target's error
+        intervals (``error_intervals``, in the rows' order), the targets answered, outside and
+        not identifiable, the experiments."""
         e = np.abs(self.errors)
         stat = (lambda f, x: float(f(x)) if x.size else math.nan)
-        return {"median_zeta": stat(np.median, e[:, 0]), "median_fn": stat(np.median, e[:, 1]),
-                "worst_zeta": stat(np.max, e[:, 0]), "worst_fn": stat(np.max, e[:, 1]),
-                "median": stat(np.median, e), "worst": stat(np.max, e),
-                "targets": len(e), "outside_region": sum(r.outside for r in self.rows),
-                "unidentified": sum((not r.outside) and not r.identified for r in self.rows),
-                "experiments": self.experiments}
+        answered = [r for r in self.rows if not r.outside]
+        bounds = np.array([r.worst_bound for r in answered], float)
+        out = {"median_zeta": stat(np.median, e[:, 0]), "median_fn": stat(np.median, e[:, 1]),
+               "worst_zeta": stat(np.max, e[:, 0]), "worst_fn": stat(np.max, e[:, 1]),
+               "median": stat(np.median, e), "worst": stat(np.max, e), "worst_bound": stat(np.max, bounds),
+               "error_intervals": [[list(iv) for iv in r.error_interval] for r in answered],
+               "targets": len(e), "outside_region": sum(r.outside for r in self.rows),
+               "unidentified": sum((not r.outside) and not r.identified for r in self.rows),
+               "experiments": self.experiments}
+        if self.tolerance is not None:
+            verdicts = [r.reached(self.tolerance) for r in answered]
+            out.update(tolerance=self.tolerance, reached=sum(ok for ok, _ in verdicts),
+                       undecided=sum("cannot be told" in why for _, why in verdicts))
+        return out
 
     def markdown(self) -> str:
         """The table of targets and the summary, as Markdown."""
-        lines = [f"**{self.method}**", "", "| # | target (ζ, fn [Hz]) | predicted | measured | error ζ, fn | steps |",
-                 "|---|---|---|---|---|---|"]
+        tol = self.tolerance
+        lines = [f"**{self.method}**", "", "| # | target (ζ, fn [Hz]) | predicted | measured [90 % interval] | "
+                 "error ζ, fn [90 % interval] | steps |" + (f" within ±{tol:.0%}? |" if tol is not None else ""),
+                 "|---|---|---|---|---|---|" + ("---|" if tol is not None else "")]
         for k, r in enumerate(self.rows, 1):
             tgt = f"({r.target[0]:.3f}, {r.target[1]:.2f})"
             pred = f"({r.predicted[0]:.3f}, {r.predicted[1]:.2f})" if r.predicted else "–"
             if r.outside:
                 near = f" (nearest {r.nearest[0]:.3f}, {r.nearest[1]:.2f} Hz)" if r.nearest else ""
-                lines.append(f"| {k} | {tgt} | outside the region{near} | – | – | {r.experiments} |")
+                lines.append(f"| {k} | {tgt} | outside the region{near} | – | – | {r.experiments} |"
+                             + (" – |" if tol is not None else ""))
                 continue
             if r.identified:
-                meas = f"({r.measured.zeta:.3f}, {r.measured.fn:.2f})"
-                err = f"{r.error[0]:+.1%}, {r.error[1]:+.1%}"
+                (zl, zh), (fl, fh) = r.measured.zeta_interval, r.measured.fn_interval
+                (ezl, ezh), (efl, efh) = r.error_interval
+                meas = f"ζ {r.measured.zeta:.3f} [{zl:.3f}, {zh:.3f}], fn {r.measured.fn:.2f} [{fl:.2f}, {fh:.2f}]"
+                err = (f"{r.error[0]:+.1%} [{ezl:+.1%}, {ezh:+.1%}], "
+                       f"{r.error[1]:+.1%} [{efl:+.1%}, {efh:+.1%}]")
             else:
                 meas = f"not identifiable: {r.measured.reason or r.measured.status}"
                 err = "∞"
-            lines.append(f"| {k} | {tgt} | {pred} | {meas} | {err} | {r.experiments} |")
+            cell = ""
+            if tol is not None:
+                ok, why = r.reached(tol)
+                cell = " yes |" if ok else (" cannot be told (intervals wider) |" if "cannot be told" in why else " no |")
+            lines.append(f"| {k} | {tgt} | {pred} | {meas} | {err} | {r.experiments} |{cell}")
         s = self.summary()
-        lines += ["", f"Median error {s['median']:.1%}, worst {s['worst']:.1%} over {s['targets']} targets "
+        lines += ["", f"Median error {s['median']:.1%}, worst {s['worst']:.1%} (their 90 % intervals allow up to "
+                      f"{s['worst_bound']:.1%}) over {s['targets']} targets "
                       f"({s['unidentified']} not identifiable, {s['outside_region']} outside the region); "
-                      f"{s['experiments']} experiments."]
+                      f"{s['experiments']} experiments."
+                      + (f" {s['reached']} reached within ±{tol:.0%} by their 90 % intervals, {s['undecided']} with "
+                         f"intervals wider than that." if tol is not None else "")]
         return "\n".join(lines)
 
     def _repr_markdown_(self) -> str:
@@ -133,7 +215,8 @@ class Validation:
         return plots.plot_validation(self, ax=ax)
 
 
-def validate(odrv, targets, gains_of, method: str, setup_experiments: int = 0, step_kwargs=None) -> Validation:
+def validate(odrv, targets, gains_of, method: str, setup_experiments: int = 0, step_kwargs=None,
+             tolerance: float | None = None) -> Validation:
     """Validate a method on the leg: for each target the method's gains, one step, its
     classification.
 
@@ -152,12 +235,16 @@ def validate(odrv, targets, gains_of, method: str, setup_experiments: int = 0, s
         Steps the method spent before any target.
     step_kwargs : dict, optional
         Passed to :func:`leglib.experiments.step.step_response` for the check steps.
+    tolerance : float, optional
+        Relative tolerance within which a target counts as reached (only when its check's
+        90 % intervals lie inside it, :func:`verdict`); None gives errors without verdicts.
 
     Returns
     -------
     Validation
     """
-    result = Validation(method, setup_experiments=int(setup_experiments))
+    result = Validation(method, setup_experiments=int(setup_experiments), tolerance=tolerance)
+    dev = as_device(odrv)
     for tgt in targets:
         tgt = (float(tgt[0]), float(tgt[1]))
         try:
@@ -166,7 +253,7 @@ def validate(odrv, targets, gains_of, method: str, setup_experiments: int = 0, s
             result.rows.append(TargetResult(tgt, outside=True, nearest=(exc.nearest.zeta, exc.nearest.fn),
                                             note="outside the region"))
             continue
-        point = identify_response(step_response(odrv, *gains, **(step_kwargs or {})))
+        point = identify_response(step_response(dev, *gains, **(step_kwargs or {})), dev.leg)
         result.rows.append(TargetResult(tgt, tuple(float(g) for g in gains),
                                         None if predicted is None else tuple(map(float, predicted)), point,
                                         int(spent) + 1, note=note))

@@ -97,13 +97,19 @@ class Device:
 
     def __init__(self, odrv, backend: str, leg: LegParams, config: OdriveConfig, options: dict | None = None):
         self.raw = odrv
+        board = _virtual_model(odrv)
+        if backend == "virtual" and board is None:
+            raise ValueError("backend='virtual' does not match the device object (not a virtual ODrive)")
+        if backend not in ("virtual", "usb"):
+            raise ValueError(f"backend must be 'virtual' or 'usb', got {backend!r}")
         #: the firmware model behind a virtual ODrive (virtual clock, twin, step_batch,
         #: fault injection); None on USB
-        self.sim = _virtual_model(odrv)
+        self.sim = board if backend == "virtual" else None
+        # a virtual board reached through ``odrive.find_any`` (the USB code path, as a test
+        # puts the twin behind it) is driven exactly as a real one; only its clock is the
+        # board's own (the virtual clock, which runs with the wall clock in real time)
+        self.__dict__["_board_sim"] = board
         self.backend = backend
-        if (backend == "virtual") != (self.sim is not None):
-            raise ValueError(f"backend={backend!r} does not match the device object "
-                             f"({'a virtual' if self.sim is not None else 'not a virtual'} ODrive)")
         self.leg = leg
         self.config = config
         self.axes = AxisMap.from_leg(leg)
@@ -211,16 +217,35 @@ class Device:
     def time(self) -> float:
         """Seconds: the virtual clock on the twin (since its power-up), the wall clock
         since connect on USB."""
-        if self.sim is not None:
-            return self.sim.time
+        board = self.__dict__.get("_board_sim")
+        if board is not None:
+            return board.time
         return time.monotonic() - self._t0
 
     def sleep(self, seconds: float) -> None:
         """Wait; on the twin the simulated leg moves on meanwhile."""
-        if self.sim is not None:
-            self.sim.sleep(seconds)
+        board = self.__dict__.get("_board_sim")
+        if board is not None:
+            board.sleep(seconds)
         else:
             time.sleep(seconds)
+
+    def board_clock(self) -> float:
+        """Seconds on a clock that runs with the board from connection to connection: the
+        virtual board's own clock (since its power-up), else the host's monotonic clock."""
+        board = self.__dict__.get("_board_sim")
+        return board.time if board is not None else time.monotonic()
+
+    @property
+    def serial(self) -> int:
+        """The board's serial number (read once; a virtual board's from its model, without a
+        USB transaction)."""
+        serial = self.__dict__.get("_serial")
+        if serial is None:
+            board = self.__dict__.get("_board_sim")
+            serial = int(board._serial()) if board is not None else int(self.raw.serial_number)
+            self.__dict__["_serial"] = serial
+        return serial
 
     # -- safety ------------------------------------------------------------------------
     def idle_all(self, confirm: float = 0.05) -> list[str]:

@@ -107,7 +107,7 @@ def ideal_sensor_plant(plant):
 
 
 def _measure(dev, gains):
-    p = identify_response(step_response(dev, *gains))
+    p = identify_response(step_response(dev, *gains), dev.leg)
     return (p.zeta, p.fn) if p.status == "ok" else (math.nan, math.nan)
 
 
@@ -123,7 +123,8 @@ def _score(v: Validation, seconds: float) -> Score:
             continue
         m = (r.measured.zeta, r.measured.fn) if r.identified else (math.nan, math.nan)
         detail[f"target {k}"] = {"target": r.target, "gains": r.gains, "measured": m, "error": r.error,
-                                 "experiments": r.experiments, **({"note": r.note} if r.note else {})}
+                                 "error_interval": r.error_interval, "experiments": r.experiments,
+                                 **({"note": r.note} if r.note else {})}
         if not r.identified:
             notes.append(f"target {k} not identifiable")
     return Score(s["median"], s["worst"], experiments=s["experiments"], detail=detail, note="; ".join(notes),
@@ -169,8 +170,8 @@ def evaluate(plant_name: str, payload: float = 0.0, seed: int = 70, quick: bool 
                                                 quantize=False), gains)
             errs, detail, flagged = [], {}, 0
             for g, ref in zip(gains, ideal):
-                p = identify_response(step_response(dev, *g))
-                r = identify_response(ref)
+                p = identify_response(step_response(dev, *g), leg)
+                r = identify_response(ref, leg)
                 if p.status != "ok" or r.status != "ok":
                     flagged += 1
                     detail[str(tuple(g))] = {"status": p.status, "reference": r.status, "reason": p.reason}
@@ -178,6 +179,9 @@ def evaluate(plant_name: str, payload: float = 0.0, seed: int = 70, quick: bool 
                 e = (_rel(p.zeta, r.zeta), _rel(p.fn, r.fn))
                 errs.extend(e)
                 detail[str(tuple(g))] = {"measured": (p.zeta, p.fn), "ideal": (r.zeta, r.fn), "error": e,
+                                         "zeta_interval": p.zeta_interval, "fn_interval": p.fn_interval,
+                                         "ideal_inside": bool(p.zeta_interval[0] <= r.zeta <= p.zeta_interval[1]
+                                                              and p.fn_interval[0] <= r.fn <= p.fn_interval[1]),
                                          "r2": p.r2}
             out["second order"] = Score(*_stats(errs), experiments=len(gains), detail=detail,
                                         note=f"{flagged} flagged as not a second-order step" if flagged else "",
@@ -220,7 +224,7 @@ def evaluate(plant_name: str, payload: float = 0.0, seed: int = 70, quick: bool 
             say(f"{plant_name}: map (thesis grid)")
             grid = thesis_grid()
             batch = dev.sim.step_batch(grid, vel_limit=dev.config.step_vel_limit, abort_error_turns=0.8)
-            gm = GainMap.from_responses(_responses_from_batch(dev, grid, batch, 0.4))
+            gm = GainMap.from_responses(_responses_from_batch(dev, grid, batch, 0.4), leg)
             v = validate(dev, targets, lambda tg: (gm.gains_for(*tg), 0, None, ""), "map",
                          setup_experiments=len(grid))
             out["map"] = _score(v, time.perf_counter() - t0)
@@ -242,8 +246,10 @@ def evaluate(plant_name: str, payload: float = 0.0, seed: int = 70, quick: bool 
                 d = tune(dev, *tgt, max_experiments=10)
                 errs.extend(d.error)
                 counts.append(len(d.experiments))
-                detail[f"target {k}"] = {"target": tgt, "gains": d.gains, "measured": d.measured, "error": d.error,
-                                         "experiments": len(d.experiments), "reached": d.reached}
+                detail[f"target {k}"] = {"target": tgt, "gains": d.gains, "measured": d.measured,
+                                         "intervals": d.intervals, "error": d.error,
+                                         "experiments": len(d.experiments), "reached": d.reached,
+                                         "verdict": d.verdict}
             out["design"] = Score(*_stats(errs), experiments=int(sum(counts)), detail=detail,
                                   note=f"experiments per target: median {np.median(counts):.0f}, max {max(counts)}",
                                   seconds=time.perf_counter() - t0)
@@ -410,7 +416,9 @@ def design_study(plants=None, payloads=(0.0, 0.3), n_targets: int = 4, seed: int
 
 def design_summary(rows) -> dict:
     """Per (plant, payload): median and worst |error| (zeta and fn together), the largest
-    number of experiments, targets reached; and "all" over every row."""
+    number of experiments, targets reached (the final check's 90 % intervals within the
+    tolerance), targets whose intervals are wider than the tolerance (``undecided``: the
+    model error is larger than it); and "all" over every row."""
     groups: dict = {}
     for r in rows:
         if r.design is not None:
@@ -423,7 +431,8 @@ def design_summary(rows) -> dict:
         e = np.abs(np.array([r.error for r in rs], float))
         out[key] = {"median": float(np.median(e)), "worst": float(np.max(e)),
                     "max_experiments": int(max(r.experiments for r in rs)),
-                    "reached": int(sum(r.design.reached for r in rs)), "targets": len(rs)}
+                    "reached": int(sum(r.design.reached for r in rs)),
+                    "undecided": int(sum("cannot be told" in r.design.verdict for r in rs)), "targets": len(rs)}
     failed = [f"{r.plant}, {r.payload:g} kg" for r in rows if r.design is None]
     if failed:
         out["not prepared"] = {"legs": failed, "reasons": [r.failure for r in rows if r.design is None]}
@@ -433,16 +442,17 @@ def design_summary(rows) -> dict:
 def design_study_markdown(rows) -> str:
     """The rows of :func:`design_study` and their :func:`design_summary` as two Markdown
     tables; a leg that could not be prepared is a row with its reason."""
-    lines = ["| plant | payload [kg] | target (ζ, fn [Hz]) | from | measured | error ζ, fn | experiments |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| plant | payload [kg] | target (ζ, fn [Hz]) | from | measured [90 % interval] | error ζ, fn | "
+             "experiments |", "|---|---|---|---|---|---|---|"]
     for r in rows:
         head = f"| {r.plant} | {r.payload:g} | ({r.target[0]:.3f}, {r.target[1]:.2f}) | {r.source} | "
         if r.design is None:
             lines.append(head + f"— | {r.failure.replace('|', '/')} | 0 |")
             continue
         d = r.design
-        lines.append(head + f"({d.measured[0]:.3f}, {d.measured[1]:.2f}) | {d.error[0]:+.1%}, {d.error[1]:+.1%} | "
-                     f"{r.experiments}{'' if d.reached else ' (not reached)'} |")
+        (zl, zh), (fl, fh) = d.intervals
+        lines.append(head + f"ζ {d.measured[0]:.3f} [{zl:.3f}, {zh:.3f}], fn {d.measured[1]:.2f} [{fl:.2f}, {fh:.2f}] | "
+                     f"{d.error[0]:+.1%}, {d.error[1]:+.1%} | {r.experiments}{'' if d.reached else ' (not reached)'} |")
     summary = design_summary(rows)
     lines += ["", "| plant, payload | median error | worst error | most experiments | reached |", "|---|---|---|---|---|"]
     for k, v in summary.items():

@@ -17,6 +17,7 @@ import numpy as np
 from .. import plots
 from ..abort import N_OSC, oscillation_update
 from ..abort import REASONS as ABORT_REASONS
+from ..device import bench
 from ..device.session import (
     AXIS_STATE_CLOSED_LOOP_CONTROL,
     CONTROL_MODE_POSITION,
@@ -320,15 +321,31 @@ def step_response(odrv, pos_gain: float, vel_gain: float, vel_integrator_gain: f
     gains = (float(pos_gain), float(vel_gain), float(vel_integrator_gain))
     vl = dev.config.step_vel_limit if vel_limit is None else vel_limit
     if path == "batched":
-        with safe(dev):
-            prepare_closed_loop(dev, vl, watchdog=None)   # the kernel's step is one transaction: nothing to lose
-            out = sim.step_batch(np.array([gains]), step_turns=step, duration=duration,
-                                 sample_period=sample_period, vel_limit=vl,
-                                 abort_error_turns=2 * abs(step))
+        with bench.timed(dev, "step") as entry:
+            t0 = dev.board_clock()
+            with safe(dev):
+                prepare_closed_loop(dev, vl, watchdog=None)   # the kernel's step is one transaction: nothing to lose
+                out = sim.step_batch(np.array([gains]), step_turns=step, duration=duration,
+                                     sample_period=sample_period, vel_limit=vl,
+                                     abort_error_turns=2 * abs(step))
+            entry["charged"] = batch_charge(dev, out, dev.board_clock() - t0, duration, settle, sample_period)
         return _responses_from_batch(dev, [gains], out, step)[0]
-    resp = _step_polled(dev, gains, step, duration, sample_period, vl, 2 * abs(step), on_sample=on_sample)
-    dev.sleep(settle)
+    with bench.timed(dev, "step"):
+        resp = _step_polled(dev, gains, step, duration, sample_period, vl, 2 * abs(step), on_sample=on_sample)
+        dev.sleep(settle)
     return resp
+
+
+def batch_charge(dev: Device, out: dict, took: float, duration: float, settle: float, sample_period: float) -> float:
+    """Bench seconds to add to the steps of a twin batch ``out`` that its kernel ran in ``took``
+    seconds of the board's clock (each charged its full duration and a 2 s settle, no
+    polling): what the same steps cost on the leg's polling path
+    (:func:`leglib.device.bench.step_seconds`, at this board's USB latency; an aborted step
+    ends at its abort), less what the clock saw."""
+    latency = float(dev.sim.twin.plant.usb_latency)
+    ticks = np.asarray(out["abort_tick"], dtype=float)
+    ran = np.where(ticks >= 0, np.minimum(ticks * dev.sim.twin.dt, duration), duration)
+    return float(sum(bench.step_seconds(float(d), settle, sample_period, latency=latency) for d in ran)) - took
 
 
 def return_to_rest(odrv, pos_gain: float = 20.0, vel_gain: float = 0.05, vel_integrator_gain: float = 0.3,
@@ -347,18 +364,19 @@ def return_to_rest(odrv, pos_gain: float = 20.0, vel_gain: float = 0.05, vel_int
         if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
                 or not math.isfinite(value) or not 0 <= value <= 60:
             raise ValueError(f"{name} must be a number of seconds in [0, 60], got {value!r}")
-    with safe(dev):
-        prepare_closed_loop(dev, min(dev.config.vel_limit, 2.0), watchdog=HOLD_WATCHDOG)
-        for a in (0, 1):
-            dev.set(a, "pos_gain", pos_gain)
-            dev.set(a, "vel_gain", vel_gain)
-            dev.set(a, "vel_integrator_gain", vel_integrator_gain)
-            dev.set(a, "control_mode", CONTROL_MODE_POSITION)
-            dev.set(a, "input_mode", INPUT_MODE_PASSTHROUGH)
-        enter_closed_loop(dev)
-        for j, a in enumerate(dev.axes.axis_of_joint):
-            dev.set(a, "input_pos", dev.axes.zero[j])
-        hold_under_watchdog(dev, move_time)
-    dev.sleep(settle)
-    a1, a2 = dev.axes.axis_of_joint
-    return float(dev.axes.counts_to_joint(dev.counts(a1), 0)), float(dev.axes.counts_to_joint(dev.counts(a2), 1))
+    with bench.timed(dev, "hold"):
+        with safe(dev):
+            prepare_closed_loop(dev, min(dev.config.vel_limit, 2.0), watchdog=HOLD_WATCHDOG)
+            for a in (0, 1):
+                dev.set(a, "pos_gain", pos_gain)
+                dev.set(a, "vel_gain", vel_gain)
+                dev.set(a, "vel_integrator_gain", vel_integrator_gain)
+                dev.set(a, "control_mode", CONTROL_MODE_POSITION)
+                dev.set(a, "input_mode", INPUT_MODE_PASSTHROUGH)
+            enter_closed_loop(dev)
+            for j, a in enumerate(dev.axes.axis_of_joint):
+                dev.set(a, "input_pos", dev.axes.zero[j])
+            hold_under_watchdog(dev, move_time)
+        dev.sleep(settle)
+        a1, a2 = dev.axes.axis_of_joint
+        return float(dev.axes.counts_to_joint(dev.counts(a1), 0)), float(dev.axes.counts_to_joint(dev.counts(a2), 1))

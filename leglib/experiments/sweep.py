@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
+from ..device import bench
 from ..device.session import (
     Device,
     any_error,
@@ -33,7 +34,7 @@ from ..files.sweepdir import (
     set_aside,
     uncommitted_claim_key,
 )
-from .step import _STEP_FIELDS, _batch_points, step_response
+from .step import _STEP_FIELDS, _batch_points, batch_charge, step_response
 
 
 @dataclass
@@ -49,25 +50,56 @@ class SweepResult:
     out_dir: Path
     set_aside: list[Path] = field(default_factory=list)
     measured: int = 0   # points measured now (a twin batch writes many into one file)
+    #: what the sweep did on the leg and its bench time (:class:`leglib.device.bench.BenchReport`;
+    #: on the twin: what it would take on the leg)
+    bench: object = None
 
     @property
     def paths(self) -> list[Path]:
         return list_measurements(self.out_dir)
 
 
-def thesis_grid() -> np.ndarray:
-    """Listing 7.4's grid of gains.
+def thesis_grid(pos_n: int = 4, vel_n: int = 10, vint_n: int = 10) -> np.ndarray:
+    """Listing 7.4's grid of gains (or a coarser one over the same ranges).
+
+    Parameters
+    ----------
+    pos_n, vel_n, vint_n : int
+        Values of each gain (the listing's 4, 10, 10; the notebooks' smoke runs take 2, 4, 4).
 
     Returns
     -------
-    (400, 3) ndarray
-        pos_gain 20..50 (4 values) [(turn/s)/turn], vel_gain 0.002..0.18 (10) [N*m/(turn/s)],
-        vel_integrator_gain 0.002..0.08 (10) [N*m/turn], every combination.
+    (pos_n * vel_n * vint_n, 3) ndarray
+        pos_gain 20..50 [(turn/s)/turn], vel_gain 0.002..0.18 [N*m/(turn/s)],
+        vel_integrator_gain 0.002..0.08 [N*m/turn], every combination.
     """
-    pos = np.linspace(20, 50, 4)
-    vel = np.linspace(0.002, 0.18, 10)
-    vint = np.linspace(0.002, 0.08, 10)
+    for name, n in (("pos_n", pos_n), ("vel_n", vel_n), ("vint_n", vint_n)):
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+            raise ValueError(f"thesis_grid: {name} must be a positive integer, got {n!r}")
+    pos = np.linspace(20, 50, pos_n)
+    vel = np.linspace(0.002, 0.18, vel_n)
+    vint = np.linspace(0.002, 0.08, vint_n)
     return np.array([(p, v, i) for p in pos for v in vel for i in vint])
+
+
+def pending_points(grid, out_dir: str | Path) -> int:
+    """How many points of ``grid`` a sweep into ``out_dir`` would measure now: the distinct
+    triples without a committed measurement there (read from names and batch sidecars
+    only, nothing changed; a thesis-named file is not counted as done, so this is at most
+    what the sweep measures)."""
+    grid = np.atleast_2d(np.asarray(list(grid), dtype=float))
+    if grid.size == 0:
+        return 0
+    if grid.shape[1] != 3:
+        raise ValueError(f"grid must hold (pos_gain, vel_gain, vel_integrator_gain) triples, got shape {grid.shape}")
+    done = committed_gains(out_dir) if Path(out_dir).is_dir() else set()
+    return len({tuple(float(x) for x in g) for g in grid} - done)
+
+
+def sweep_seconds(points: int, duration: float = 1.5, sample_period: float = 0.002) -> float:
+    """Bench time [s] of a sweep of ``points`` steps on the leg (each step and its 2 s settle,
+    :func:`leglib.device.bench.step_seconds`)."""
+    return points * bench.step_seconds(duration, bench.STEP_SETTLE, sample_period)
 
 
 def _write_batch(dev: Device, gains, out: dict, step: float, out_dir: Path) -> tuple[Path, int]:
@@ -83,7 +115,7 @@ def _write_batch(dev: Device, gains, out: dict, step: float, out_dir: Path) -> t
 
 def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool = True,
           step: float = 0.4, duration: float = 1.5, sample_period: float = 0.002,
-          chunk: int = 400) -> SweepResult:
+          chunk: int = 400, max_minutes: float | None = None) -> SweepResult:
     """Measure a step response for every (pos_gain, vel_gain, vel_integrator_gain) in
     ``grid`` and write them as measurement files in ``out_dir``: on the twin each batch of
     points as one batch file (:func:`leglib.files.measurements.write_batch`), on a real leg
@@ -121,12 +153,19 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
     chunk : int
         On the twin, points per compiled batch (the thesis grid in one: a batch costs a fixed
         setup, and the kernel shares a batch out best when it is large).
+    max_minutes : float, optional
+        On a real leg, the longest the sweep may take [min] (default
+        :data:`leglib.device.bench.DEFAULT_MAX_BENCH_MINUTES`): a sweep whose estimate
+        (:func:`sweep_seconds` of the points still to measure) is longer is refused before
+        anything moves or is written, the message giving the estimate. The thesis grid
+        takes about 24 minutes. On the twin nothing is refused.
 
     Returns
     -------
     SweepResult
         The files written now, the points measured now and skipped, the unstable ones, the
-        files set aside.
+        files set aside, and ``bench``: what it did on the leg (on the twin: would do) and its
+        bench time at real speed.
 
     Raises
     ------
@@ -138,9 +177,9 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
         ``out_dir`` holds measurements and ``resume`` is False.
     ProvenanceError
         ``out_dir`` holds another leg's or experiment's sweep.
+    BenchLimitError
+        On a real leg: the sweep would take longer than ``max_minutes``.
     """
-
-
     dev = as_device(odrv)
     out_dir = Path(out_dir)
     try:
@@ -155,6 +194,9 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
                          f"got shape {grid.shape}")
     for g in grid:
         check_gains(dev.config, *g)
+    todo = pending_points(grid, out_dir)
+    bench.require(dev, sweep_seconds(todo, duration, sample_period), max_minutes,
+                  f"the sweep of {todo} point(s) into {out_dir}")
     record = {"device": dev.describe(),
               "experiment": {"step": step, "duration": duration, "sample_period": sample_period,
                              "step_vel_limit": dev.config.step_vel_limit}}
@@ -203,8 +245,9 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
     bar = tqdm(total=len(grid), initial=skipped, desc="sweep", unit="step", disable=not progress)
     queue = pending
     claims: list = []
+    since = bench.mark(dev)
     try:
-        with safe(dev):
+        with bench.timed(dev, "sweep", text=f"sweep into {out_dir}") as sweep_note, safe(dev):
             batched = dev.sim is not None and not dev.sim.realtime
             if batched:
                 prepare_closed_loop(dev, vl, watchdog=None)
@@ -234,9 +277,13 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
                         # the twin's batch: one batch file, its directory flushed at the
                         # end (deferred_sync)
                         arr = np.array(block)
-                        out = dev.sim.step_batch(arr, step_turns=step, duration=duration,
-                                                 sample_period=sample_period, vel_limit=vl,
-                                                 abort_error_turns=2 * abs(step))
+                        with bench.timed(dev, "step", count=len(block)) as entry:
+                            t0 = dev.board_clock()
+                            out = dev.sim.step_batch(arr, step_turns=step, duration=duration,
+                                                     sample_period=sample_period, vel_limit=vl,
+                                                     abort_error_turns=2 * abs(step))
+                            entry["charged"] = batch_charge(dev, out, dev.board_clock() - t0, duration,
+                                                            bench.STEP_SETTLE, sample_period)
                         with deferred_sync():
                             path, bad = _write_batch(dev, arr, out, step, out_dir)
                         written.append(path)
@@ -255,9 +302,11 @@ def sweep(odrv, grid, out_dir: str | Path, resume: bool = True, progress: bool =
                     c.release()
                 claims = []
                 queue = waiting
+            sweep_note["text"] = (f"sweep into {out_dir}: {measured} point(s) measured, {skipped} already there, "
+                                  f"{unstable} unstable")
     finally:
         for c in claims:
             c.release()
         bar.close()
     return SweepResult(written=written, skipped=skipped, unstable=unstable, out_dir=out_dir,
-                       set_aside=moved, measured=measured)
+                       set_aside=moved, measured=measured, bench=bench.report(since, dev))

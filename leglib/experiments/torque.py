@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import plots
+from ..device import bench
 from ..device.session import (
     AXIS_STATE_CLOSED_LOOP_CONTROL,
     CONTROL_MODE_TORQUE,
@@ -181,7 +182,7 @@ def torque_loop(odrv, policy, duration: float, period: float | None = None,
     a_q1, a_q2 = ax.axis_of_joint
     limit = dev.config.current_lim * dev.config.torque_constant
     ts, t_cmd, t_read, c1, c2, iq, applied = [], [], [], [], [], [], []
-    with safe(dev):
+    with bench.timed(dev, "torque"), safe(dev):
         prepare_closed_loop(dev, dev.config.vel_limit, watchdog=0.2)
         for a in (0, 1):
             dev.set(a, "input_torque", 0.0)

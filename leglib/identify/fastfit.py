@@ -559,6 +559,58 @@ def _fit_one(t_in, y, out):
 
 
 @njit(cache=True)
+def _refit_one(t_in, y, p0, out):
+    """Fit the model to (``t_in``, ``y``) from the parameters ``p0`` (one start: the
+    minimum nearest to them); ``out`` gets zeta, wn, gain, offset, delay (NaN where the fit
+    ends on a bound of zeta or does not explain half the response)."""
+    n = t_in.size
+    out[:] = math.nan
+    if n < 20:
+        return
+    t = t_in - t_in[0]
+    dt = t[n - 1] / (n - 1)
+    for i in range(n):
+        if abs(t[i] - i * dt) > 1e-9 * dt:
+            dt = 0.0
+            break
+    lo = np.array([ZETA_MIN, 1e-2, -np.inf, -np.inf, 0.0])
+    hi = np.array([ZETA_MAX, 1e5, np.inf, np.inf, 0.5 * t[n - 1]])
+    p = np.empty(5)
+    for a in range(5):
+        p[a] = min(max(p0[a], lo[a]), hi[a])
+    cost, _ = _levenberg_marquardt(t, y, p, lo, hi, 200, dt)
+    ym = np.mean(y)
+    sst = 0.0
+    for i in range(n):
+        sst += (y[i] - ym) ** 2
+    if not (sst > 0.0 and 1.0 - 2.0 * cost / sst >= MIN_R2) or p[0] >= 0.99 * ZETA_MAX or p[0] <= 1.01 * ZETA_MIN:
+        return
+    for a in range(5):
+        out[a] = p[a]
+
+
+@njit(cache=True, parallel=True)
+def _refit_packed(t, y, bounds, p0s, out):
+    """:func:`_refit_one` of every packed response from its row of ``p0s``."""
+    for k in prange(bounds.size - 1):
+        a, b = bounds[k], bounds[k + 1]
+        _refit_one(t[a:b], y[a:b], p0s[k], out[k])
+
+
+def refit_from(ts, ys, starts) -> np.ndarray:
+    """Fit each response (``ts`` [s], ``ys``, equal-length 1-D arrays) from its own start
+    (rows of ``starts``: zeta, wn [rad/s], gain, offset, delay [s]) with one bounded
+    Levenberg-Marquardt run, in one compiled call: the minimum nearest to the start, as a
+    fit's refits on parts of its record need. Returns (K, 5) parameters (NaN rows for a fit
+    that ends on a bound of zeta or explains less than :data:`MIN_R2`)."""
+    t, y, bounds = _pack(ts, ys)
+    out = np.empty((bounds.size - 1, 5))
+    if bounds.size > 1:
+        _refit_packed(t, y, bounds, np.ascontiguousarray(starts, dtype=float).reshape(-1, 5), out)
+    return out
+
+
+@njit(cache=True)
 def _fit_packed(t, y, bounds, out, status):
     for k in range(bounds.size - 1):
         a, b = bounds[k], bounds[k + 1]

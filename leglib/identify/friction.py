@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -122,8 +122,17 @@ class FrictionFit:
     v0 : initial velocity [rad/s]; eps : Coulomb smoothing velocity [rad/s]
     stderr : standard errors by name (NaN for a direction not identified)
     r2, rms : of the velocity fit (rms in rad/s); aic; n : samples
-    identified_pos, identified_neg : whether each direction was excited (moved faster than
-        a few eps for at least :data:`MIN_DIRECTION_SAMPLES` samples)
+    identified_pos, identified_neg : whether each direction's Coulomb value is identified:
+        the direction was excited (moved faster than a few eps for at least
+        :data:`MIN_DIRECTION_SAMPLES` samples) and the data separate it (see
+        ``not_identifiable``)
+    not_identifiable : {parameter: why the data cannot give it, and the experiment that
+        would}: a direction never excited, one torque level while moving one way with the
+        inertia fitted (Coulomb + viscous x plateau velocity is one equation, the rise one
+        more for three unknowns), a value fitted onto its bound. A Coulomb value listed here
+        is NaN; a viscous or inertia value listed here is kept only for :meth:`simulate`
+    intervals : {parameter: (low, high)}, 90 % intervals from the standard errors (clipped
+        at 0); NaN for a parameter that is not identifiable
     """
 
     coulomb_pos: float
@@ -139,6 +148,25 @@ class FrictionFit:
     n: int
     identified_pos: bool = True
     identified_neg: bool = True
+    not_identifiable: dict = field(default_factory=dict)
+    intervals: dict = field(default_factory=dict)
+
+    def table(self) -> str:
+        """Markdown: each parameter with its 90 % interval, or why the data cannot give it."""
+        rows = ["| parameter | value [90 % interval] |", "|---|---|"]
+        units = {"coulomb_pos": "N m", "coulomb_neg": "N m", "coulomb": "N m", "viscous": "N m s/rad",
+                 "inertia": "kg m²"}
+        for name, unit in units.items():
+            why = self.not_identifiable.get(name)
+            if why:
+                rows.append(f"| {name} [{unit}] | not identifiable: {why} |")
+                continue
+            lo, hi = self.intervals.get(name, (math.nan, math.nan))
+            rows.append(f"| {name} [{unit}] | {getattr(self, name):.4g} [{lo:.4g}, {hi:.4g}] |")
+        return "\n".join(rows)
+
+    def _repr_markdown_(self) -> str:
+        return self.table()
 
     @property
     def coulomb(self) -> float:
@@ -309,16 +337,83 @@ def fit_friction(t, torque, velocity=None, position=None, inertia: float | None 
         stderr["coulomb"] = stderr["coulomb_pos" if pos_ok else "coulomb_neg"]
     else:
         stderr["coulomb"] = math.nan
+    why = _single_joint_identifiability(t, tau, v, eps, need, inertia is None,
+                                        {"coulomb_pos": cp, "coulomb_neg": cn, "viscous": b})
+    pos_ok = pos_ok and "coulomb_pos" not in why
+    neg_ok = neg_ok and "coulomb_neg" not in why
+    if pos_ok and neg_ok:
+        # the mean Coulomb's error from the two directions' (independent to first order)
+        stderr["coulomb"] = float(0.5 * math.sqrt(max(cov[i_p, i_p] + cov[i_n, i_n] + 2 * cov[i_p, i_n], 0)))
+    elif pos_ok or neg_ok:
+        stderr["coulomb"] = stderr["coulomb_pos" if pos_ok else "coulomb_neg"]
+    else:
+        stderr["coulomb"] = math.nan
+        if "coulomb_pos" in why and "coulomb_neg" in why:
+            why["coulomb"] = "neither direction's Coulomb value is identified (above)"
     if not pos_ok:
         cp, stderr["coulomb_pos"] = math.nan, math.nan
     if not neg_ok:
         cn, stderr["coulomb_neg"] = math.nan, math.nan
     ssr = float(np.sum((vhat - v) ** 2))
-    return FrictionFit(coulomb_pos=float(cp), coulomb_neg=float(cn), viscous=float(b), inertia=float(J),
-                       v0=float(v0), eps=float(eps), stderr=stderr, r2=_r2(v, vhat),
-                       rms=math.sqrt(ssr / t.size),
-                       aic=_aic(ssr * effective_samples(vhat - v) / t.size, effective_samples(vhat - v), len(best.x)),
-                       n=int(t.size), identified_pos=pos_ok, identified_neg=neg_ok)
+    fit = FrictionFit(coulomb_pos=float(cp), coulomb_neg=float(cn), viscous=float(b), inertia=float(J),
+                      v0=float(v0), eps=float(eps), stderr=stderr, r2=_r2(v, vhat),
+                      rms=math.sqrt(ssr / t.size),
+                      aic=_aic(ssr * effective_samples(vhat - v) / t.size, effective_samples(vhat - v), len(best.x)),
+                      n=int(t.size), identified_pos=pos_ok, identified_neg=neg_ok, not_identifiable=why)
+    fit.intervals = {name: (math.nan, math.nan) if name in why or not math.isfinite(getattr(fit, name))
+                     else _interval90(getattr(fit, name), stderr.get(name, math.nan))
+                     for name in ("coulomb_pos", "coulomb_neg", "coulomb", "viscous", "inertia")}
+    return fit
+
+
+#: two-sided 90 % normal quantile, for the friction values' intervals
+Z90 = 1.6448536269514722
+#: a joint's torque while it moves one way spans less than this part of the largest torque:
+#: one torque level
+ONE_LEVEL = 0.05
+
+
+def _interval90(value: float, se: float) -> tuple:
+    if not (math.isfinite(value) and math.isfinite(se)):
+        return (math.nan, math.nan)
+    return (max(value - Z90 * se, 0.0), value + Z90 * se)
+
+
+def _single_joint_identifiability(t, tau, v, eps, need, inertia_fitted, values) -> dict:
+    """{parameter: why the data cannot identify it, and what experiment would} for
+    :func:`fit_friction`: a direction never excited, a direction driven at one torque level
+    while the inertia is fitted, a value on its bound (0)."""
+    why = {}
+    scale = float(np.max(np.abs(tau))) or 1.0
+    names = {1: ("coulomb_pos", "positive"), -1: ("coulomb_neg", "negative")}
+    one_level = {}
+    for sign, (name, word) in names.items():
+        moving = sign * v > 3 * eps
+        if int(np.sum(moving)) < need:
+            why[name] = (f"the joint never moved in the {word} direction (fewer than {need} samples faster than "
+                         f"3 eps = {3 * eps:.3g} rad/s): run a torque that drives it {word} too")
+            continue
+        level = tau[moving]
+        if np.ptp(level) < ONE_LEVEL * scale:
+            one_level[name] = float(np.median(level))
+    if inertia_fitted and one_level:
+        for name, level in one_level.items():
+            word = names[1 if name == "coulomb_pos" else -1][1]
+            why[name] = (f"one torque level ({level:.3g} N m) while moving {word}: the plateau fixes only "
+                         f"Coulomb + viscous x velocity and the rise the inertia / viscous, three unknowns from two "
+                         f"numbers; run at least two torque levels that way (e.g. {level:.3g} and {1.6 * level:.3g} N m), "
+                         f"a sine of the torque, or give the inertia")
+        excited = [n for n in ("coulomb_pos", "coulomb_neg") if n not in why or n in one_level]
+        if all(n in one_level for n in excited):
+            for name in ("viscous", "inertia"):
+                why[name] = ("every direction the joint moved in was driven at one torque level: " +
+                             why[excited[0]].split(": ", 1)[1])
+    for name in ("coulomb_pos", "coulomb_neg", "viscous"):
+        if name not in why and math.isfinite(values[name]) and values[name] <= 1e-6 * scale:
+            why[name] = (f"fitted onto its bound 0 ({values[name]:.2g}): the data push it below what is physical, "
+                         "so they do not hold its value; vary the torque (two levels or a sine) over the range where "
+                         "it acts")
+    return why
 FRICTION_MODELS = ("coulomb_viscous", "stribeck")
 
 
@@ -352,6 +447,11 @@ class LegFrictionFit:
     start: float
     v_smooth: float
     converged: bool = True
+    #: {parameter: (low, high)} 90 % intervals from the standard errors; NaN for a parameter
+    #: that is not identifiable
+    intervals: dict = field(default_factory=dict)
+    #: {parameter: why the data cannot give it}: a value fitted onto its bound
+    not_identifiable: dict = field(default_factory=dict)
 
     def simulate(self, run) -> np.ndarray:
         """Simulated (q1, q2) [rad] at the run's sample times from ``start`` on: (M, 2)."""
@@ -360,6 +460,8 @@ class LegFrictionFit:
 
     def to_dict(self) -> dict:
         return {"model": self.model, "params": self.params, "stderr": self.stderr,
+                "intervals": {k: list(v) for k, v in self.intervals.items()},
+                "not_identifiable": dict(self.not_identifiable), "converged": self.converged,
                 "rms_deg": list(self.rms_deg), "r2": list(self.r2), "aic": self.aic, "n": self.n,
                 "n_eff": self.n_eff, "start_s": self.start, "v_smooth": self.v_smooth}
 
@@ -546,7 +648,16 @@ def fit_leg_friction(run, leg, model: str = "coulomb_viscous", cross: bool = Fal
     cov = _covariance(best, r.size)
     se = dict(zip(names, map(float, np.sqrt(np.clip(np.diag(cov), 0, None)))))
     ssr = float(np.sum(r ** 2))
+    why = {}
+    for k, (name, value) in enumerate(zip(names, best.x)):
+        span = hi[k] - lo[k]
+        for bound, word in ((lo[k], "lower"), (hi[k], "upper")):
+            if abs(value - bound) <= 1e-6 * span and not name.startswith("dq"):
+                why[name] = (f"fitted onto its {word} bound {bound:g}: the run does not hold its value (a fit that "
+                             f"wants it past what the model allows); vary the torque more where it acts")
+    intervals = {name: (math.nan, math.nan) if name in why else _interval90(float(d[name]), se[name]) for name in names}
     return LegFrictionFit(model=model, params={k: float(v) for k, v in d.items()}, stderr=se,
+                          intervals=intervals, not_identifiable=why,
                           rms_deg=tuple(float(np.degrees(np.sqrt(np.mean(r[:, j] ** 2)))) for j in (0, 1)),
                           r2=tuple(_r2(qm[:, j], q[:, j]) for j in (0, 1)),
                           aic=_aic(ssr * effective_samples(r) / r.size, effective_samples(r), len(names)),

@@ -20,6 +20,12 @@ import numpy as np
 from .. import checks, plots
 from ..errors import IdentificationError
 
+#: a second peak whose prominence (its height above the lowest point between the first two
+#: peaks) is below this part of the step of smooth(-y) is ripple on the settled tail, not the
+#: oscillation's second peak (on the twin over the thesis grid: 0.2 to 0.45 of the step where
+#: the true zeta is below 0.3, under 0.007 where it is above 0.6)
+RIPPLE = 0.01
+
 # the most samples a response may have: a step of seconds at the ODrive's 8 kHz is below
 # 100 000, and the fit of 1 000 000 takes tens of seconds; longer records are refused with
 # the advice to decimate them (y[::k], t[::k]), never cut or decimated silently
@@ -72,6 +78,10 @@ class ThesisReading:
         smooth(-y), the signal the peaks are taken from.
     method : str
         "thesis".
+    peak_index : (P,) ndarray of int
+        The peaks' sample indices.
+    record_end : float
+        The record's last time [s].
     """
 
     zeta: float
@@ -81,6 +91,8 @@ class ThesisReading:
     peak_values: np.ndarray
     smoothed: np.ndarray
     method: str = "thesis"
+    peak_index: np.ndarray = None
+    record_end: float = float("nan")
 
     @property
     def n_peaks(self) -> int:
@@ -93,6 +105,46 @@ class ThesisReading:
 
     overdamped = flagged
 
+    @property
+    def second_peak_prominence(self) -> float:
+        """The second peak's height above the lowest point of smooth(-y) between the first two
+        peaks, as a part of the step of smooth(-y) (NaN with fewer than two peaks)."""
+        if self.n_peaks < 2 or self.peak_index is None:
+            return float("nan")
+        sm = self.smoothed
+        n = sm.size
+        step = abs(float(np.mean(sm[n - max(5, n // 5):])) - float(np.mean(sm[:max(3, n // 50)])))
+        i1, i2 = int(self.peak_index[0]), int(self.peak_index[1])
+        return float((self.peak_values[1] - sm[i1:i2 + 1].min()) / step) if step > 0 else float("nan")
+
+    @property
+    def usable(self) -> bool:
+        """True when the listing's first two peaks are the oscillation's: at least two, and the
+        second not ripple of the settled tail (prominence at least :data:`RIPPLE` of the
+        step). Only such readings say what Listing 7.7 reads of a response."""
+        return not self.flagged and not self.second_peak_prominence < RIPPLE
+
+    @property
+    def problem(self) -> str | None:
+        """Why Listing 7.7 fails on this response, or None: fewer than two peaks (its
+        constants), a second peak that is ripple of the settled tail, or more peaks than an
+        oscillation at the reading's own frequency has in the record (findpeaks counts the
+        quantized tail's ripple; the first two may still be the oscillation's, see
+        :attr:`usable`)."""
+        if self.flagged:
+            return (f"fewer than two peaks ({self.n_peaks}): the listing returns its constant zeta = "
+                    f"{self.zeta:g}, no reading")
+        prom = self.second_peak_prominence
+        if prom < RIPPLE:
+            return (f"its second 'peak' is ripple of the settled tail (prominence {prom:.2%} of the step, under "
+                    f"{RIPPLE:.0%}): the reading measures the encoder's quantization, not the oscillation")
+        cycles = (self.record_end - self.peak_times[0]) * self.fd + 1
+        if np.isfinite(cycles) and self.n_peaks > cycles + 1:
+            return (f"findpeaks finds {self.n_peaks} peaks where an oscillation at the reading's own "
+                    f"{self.fd:.2f} Hz has at most {int(cycles) + 1} in the record: it counts the quantized tail's "
+                    f"ripple as peaks (its first two are the oscillation's here)")
+        return None
+
     def plot(self, t, ax=None):
         """Listing 7.7's view of the step at times ``t``: smooth(-y) with the peaks it found
         (:func:`leglib.plots.plot_thesis_peaks`)."""
@@ -100,6 +152,8 @@ class ThesisReading:
 
     def _repr_markdown_(self) -> str:
         how = "flagged: the listing's constant (fewer than two peaks)" if self.flagged else f"{self.n_peaks} peaks"
+        if self.problem and not self.flagged:
+            how += f"; **the listing fails here**: {self.problem}"
         fd = f"{self.fd:.3f}" if self.n_peaks >= 2 else "–"
         return ("| ζ (Listing 7.7) | 1/(t2 − t1) [Hz] | |\n|---|---|---|\n"
                 f"| {self.zeta:.4f} | {fd} | thesis measure, {how} |")
@@ -175,4 +229,5 @@ def _thesis_reading(t, y) -> ThesisReading:
         delta = -math.log(ratio)
         zeta = delta / math.sqrt((2 * math.pi) ** 2 + delta ** 2)
         fd = 1.0 / (locs[1] - locs[0])
-    return ThesisReading(float(zeta), float(fd), float(delta), locs, pks, inv)
+    return ThesisReading(float(zeta), float(fd), float(delta), locs, pks, inv, peak_index=i,
+                         record_end=float(t[-1]))

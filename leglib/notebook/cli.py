@@ -1,6 +1,8 @@
 """Command line: ``python -m leglib run`` executes every notebook into reports/;
 ``python -m leglib batch SPEC [--scheduler tcp://...]`` runs notebooks over a grid;
 ``python -m leglib robustness`` writes the robustness table to reports/robustness/;
+``python -m leglib design --backend usb --zeta 0.24 --fn 5`` finds gains for prescribed
+dynamics on a leg in a few steps (``lg.tune``), its bench time estimated first and limited;
 ``python -m leglib odrivetool [--seed N --firmware 0.5.6 --plant NAME]`` opens odrivetool's
 shell with ``odrv0`` on a virtual ODrive.
 
@@ -25,6 +27,10 @@ from ..errors import LeglibError, ParameterError, SpecError
 MAX_PAYLOAD = 5.0
 NO_WORKER_TIMEOUT = 120.0  # s, as leglib.notebook.batch.NO_WORKER_TIMEOUT (not imported: dask loads late)
 CONNECT_TIMEOUT = 10.0  # s, as leglib.notebook.batch.CONNECT_TIMEOUT
+# the design command: the most steps it may run, and its default bench limit [min] (as
+# leglib.device.bench.DEFAULT_MAX_BENCH_MINUTES; not imported: the device layer loads late)
+MAX_EXPERIMENTS = 50
+MAX_BENCH_MINUTES = 5.0
 
 
 def _number(text: str, what: str, low: float, high: float, unit: str = "") -> float:
@@ -55,6 +61,35 @@ def _workers(text: str) -> int:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
     if not 1 <= value <= 256:
         raise argparse.ArgumentTypeError(f"{text}: between 1 and 256 processes")
+    return value
+
+
+def _positive(what: str, high: float, unit: str = ""):
+    def parse(text: str) -> float:
+        value = _number(text, what, 0.0, high, unit)
+        if value <= 0:
+            raise argparse.ArgumentTypeError(f"{text}{unit}: {what} must be positive")
+        return value
+    return parse
+
+
+def _experiments(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if not 1 <= value <= MAX_EXPERIMENTS:
+        raise argparse.ArgumentTypeError(f"{text}: between 1 and {MAX_EXPERIMENTS} steps")
+    return value
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if not 0 <= value <= 2**32 - 1:
+        raise argparse.ArgumentTypeError(f"{text}: a seed is 0 to 2**32 - 1")
     return value
 
 
@@ -122,6 +157,37 @@ def _parser() -> argparse.ArgumentParser:
     rob.add_argument("--payload", type=_payload, default=0.0, metavar="KG",
                      help=f"foot payload [kg], 0 to {MAX_PAYLOAD:g} (default: %(default)g)")
     rob.add_argument("--quick", action="store_true", help="fewer targets, a shorter friction run (default: off)")
+    des = sub.add_parser("design", help="gains for prescribed dynamics on a leg in a few steps (lg.tune), the bench "
+                                        "time estimated first and limited",
+                         description="The fewest-experiment design (leglib.design.tuning.tune) on the real leg "
+                                     "(--backend usb) or its twin: the board is configured and calibrated only where "
+                                     "it needs it, the run's bench time is estimated before anything moves and on the "
+                                     "leg refused past --max-minutes. Exit code 0 when the target was reached, 1 when "
+                                     "not (the best gains are printed), 2 on a bad argument or a refused run.")
+    des.add_argument("--backend", choices=("virtual", "usb"), default="virtual",
+                     help="the real leg (usb) or the twin (virtual) (default: %(default)s)")
+    des.add_argument("--zeta", type=_positive("zeta", 5.0), default=0.24,
+                     help="target damping ratio of the foot's step, true measure (default: %(default)g)")
+    des.add_argument("--fn", type=_positive("fn", 50.0, " Hz"), default=5.0,
+                     help="target natural frequency [Hz] (default: %(default)g)")
+    des.add_argument("--max-experiments", type=_experiments, default=10, metavar="N",
+                     help=f"most steps on the leg, the final check included, 1 to {MAX_EXPERIMENTS} (default: %(default)s)")
+    des.add_argument("--max-minutes", type=_positive("the bench limit", 600.0, " min"), default=MAX_BENCH_MINUTES,
+                     metavar="MIN", help="longest run allowed on the real leg [min] (default: %(default)g)")
+    des.add_argument("--leg", default="thesis", help="nominal leg parameters: leg_<name>.toml or a path (default: %(default)s)")
+    des.add_argument("--odrive-config", default="thesis",
+                     help="ODrive configuration and bounds: odrive_<name>.toml or a path (default: %(default)s)")
+    des.add_argument("--serial-number", default=None, metavar="HEX",
+                     help="the ODrive to find on USB (default: any)")
+    des.add_argument("--timeout", type=_seconds, default=CONNECT_TIMEOUT, metavar="SECONDS",
+                     help="USB search timeout (default: %(default)g s)")
+    des.add_argument("--seed", type=_seed, default=0, help="the twin's seed, virtual only (default: %(default)s)")
+    des.add_argument("--plant", default="default", choices=plants or None, metavar="PLANT",
+                     help=f"the twin's plant, virtual only, of {{{', '.join(plants)}}} (default: %(default)s)")
+    des.add_argument("--payload", type=_payload, default=0.0, metavar="KG",
+                     help=f"the twin's foot payload [kg], virtual only, 0 to {MAX_PAYLOAD:g} (default: %(default)g)")
+    des.add_argument("--save", default=None, metavar="PATH",
+                     help="write the design (cascade gains, target, measured) to this JSON file (default: not saved)")
     tool = sub.add_parser("odrivetool", help="odrivetool's shell (IPython, odrv0) on a virtual ODrive v3.6")
     tool.add_argument("--seed", type=_seed, default=0, help="the virtual ODrive's seed: its serial number, "
                       "its noise (default: %(default)s)")
@@ -133,14 +199,43 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text}: a seed is a non-negative integer")
-    return value
+def _design(args) -> int:
+    """``python -m leglib design``: connect, estimate and limit, set up, tune, report."""
+    from ..design import saved  # load time: the design layer (scipy), for this command only
+    from ..design.tuning import tune  # load time: as above
+    from ..device import bench  # load time: the device layer, for this command only
+    from ..device.session import connect  # load time: as above
+    from ..device.setup import calibrate, configure, start_run  # load time: as above
+    from ..params import load_leg, load_odrive_config  # load time: parameter files, for this command only
+    from .setup import device_options  # load time: matplotlib (through plots), for this command only
+
+    if args.backend == "usb" and (args.seed, args.plant, args.payload) != (0, "default", 0.0):
+        raise ParameterError("--seed, --plant and --payload are the twin's: not for --backend usb")
+    leg = load_leg(args.leg)
+    cfg = load_odrive_config(args.odrive_config)
+    options = device_options(args.backend, args.seed, args.plant, args.payload)
+    if args.backend == "usb":
+        options = {"timeout": args.timeout, "serial_number": args.serial_number}
+    if args.save:
+        writable_dir(Path(args.save).parent or ".", "--save")
+    with connect(args.backend, leg=leg, config=cfg, **options) as dev:
+        run = start_run(dev, bench.Plan(steps=args.max_experiments), args.max_minutes, parameter="--max-minutes")
+        configure(dev, verbose=True)
+        calibrate(dev, verbose=True)
+        result = tune(dev, args.zeta, args.fn, args.max_experiments, progress=True, max_minutes=args.max_minutes)
+        if args.save:
+            measured = result.measured if all(math.isfinite(x) for x in result.measured) else None
+            design = saved.GainDesign(result.target, result.gains, "tune", result.predicted, measured,
+                                      {"experiments": len(result.experiments), "reached": bool(result.reached),
+                                       "tolerance": result.tolerance})
+            path = saved.save(args.save, design, device=dev,
+                              note=f"python -m leglib design --zeta {args.zeta:g} --fn {args.fn:g}")
+    print(result)
+    print(result.table())
+    print(run.report())
+    if args.save:
+        print(f"wrote {path}")
+    return 0 if result.reached else 1
 
 
 def odrivetool(seed: int = 0, firmware: str = "0.5.6", plant: str = "default", no_ipython: bool = False) -> int:
@@ -170,6 +265,11 @@ def odrivetool(seed: int = 0, firmware: str = "0.5.6", plant: str = "default", n
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    if args.command == "design":
+        try:
+            return _design(args)
+        except (LeglibError, OSError) as exc:
+            return _fail(exc)
     if args.command == "odrivetool":
         try:
             return odrivetool(args.seed, args.firmware, args.plant, args.no_ipython)

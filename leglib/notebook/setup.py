@@ -11,6 +11,7 @@ against them); the call states only what types cannot say: ranges, choices, rela
 from __future__ import annotations
 
 import io
+import json
 import math
 import os
 import re
@@ -21,7 +22,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from .. import plots
-from ..errors import NotebookParameterError
+from ..errors import NotebookParameterError, ParameterError
 from ..files.atomic import write_bytes_atomic, write_json_atomic
 from ..params import load_plant
 from .run import REPO
@@ -157,6 +158,19 @@ def check_parameters(ns: dict, *, ranges: dict | None = None, choices: dict | No
                                          f"need {expr}")
 
 
+def load_parameter_file(name: str, value: Any, loader):
+    """Load the parameter file a notebook parameter names, e.g. ``load_parameter_file(
+    "odrive_config", odrive_config, load_odrive_config)``: the leg, motor, ODrive
+    configuration or plant a notebook runs with. A name that is no file, or a file with a bad
+    value, stops the notebook with a :class:`NotebookParameterError` naming the parameter
+    (and the file and field)."""
+    require(name, value, str)
+    try:
+        return loader(value)
+    except ParameterError as exc:
+        raise NotebookParameterError(f"parameter {name!r} = {value!r}: {exc}") from None
+
+
 def _nearest_existing(path: Path) -> Path:
     p = path
     while not os.path.lexists(p) and p != p.parent:
@@ -212,6 +226,13 @@ def write_metrics(path: str | Path, **metrics) -> Path:
     (:data:`FIGURE_OVERLAPS`, empty when every figure reads)."""
     metrics.setdefault("figure_text_overlaps", {k: v for k, v in FIGURE_OVERLAPS.items() if v})
     return write_json_atomic(path, metrics)
+
+
+def add_metrics(path: str | Path, **metrics) -> Path:
+    """Add fields to the metrics JSON a notebook wrote (:func:`write_metrics`), e.g. its
+    bench report after the metrics cell."""
+    path = Path(path)
+    return write_json_atomic(path, {**json.loads(path.read_text()), **metrics})
 
 
 class FigureLayoutWarning(UserWarning):

@@ -10,10 +10,9 @@ import numpy as np
 
 from .. import plots
 from ..design import statefeedback as SF
-from ..design.points import STATUS_FAILED, identify_response
+from ..design.points import STATUS_FAILED, commanded_height, identify_response
+from ..errors import ArgumentError
 from ..experiments.step import step_response
-from ..model.drive import AxisMap
-from ..model.kinematics import foot_position
 from ..thesis import foot_mass, virtual_leg
 
 THESIS_TORQUE_LIMIT = 0.73  # N*m at a joint: the thesis's current limit through the 1:3 belt
@@ -248,31 +247,41 @@ def pole_placement_panel(sys, center: float = -7.0, spread: float = 0.007, obser
 def step_readout(resp, identified=None, leg=None) -> str:
     """The text the gain panel shows for one step response (also used by tests);
     ``identified``: the response's :func:`leglib.design.points.identify_response`, when the
-    caller already has it. "zeta = ..., fn = ... Hz, R^2 = ..." for a second-order step,
-    followed, with the nominal ``leg``, by the equivalent spring-damper-mass at the foot of
-    eqs. 6.1/6.3 (:func:`leglib.thesis.virtual_leg` with :func:`leglib.thesis.foot_mass`);
-    "not a second-order step: <why>" or "unstable: <why>" otherwise."""
-    p = identify_response(resp) if identified is None else identified
+    caller already has it (``leg``, the leg's LegParams, is needed otherwise).
+    "zeta = 0.371 [0.365, 0.378], fn = 6.98 [6.90, 7.05] Hz (90 % intervals), R^2 = ..." for
+    a second-order step, followed, with the nominal ``leg``, by the equivalent
+    spring-damper-mass at the foot of eqs. 6.1/6.3 (:func:`leglib.thesis.virtual_leg` with
+    :func:`leglib.thesis.foot_mass`), b and k with the ranges the intervals give them;
+    "not a second-order step: <why>" or "unstable: <why>" otherwise, never numbers."""
+    if identified is None and leg is None:
+        raise ArgumentError("step_readout: give the response's identification or the leg (its commanded foot "
+                            "height)")
+    p = identify_response(resp, leg) if identified is None else identified
     if p.status == STATUS_FAILED:
         why = p.reason.removeprefix("not a second-order step: ")
         return f"not a second-order step: {why}"
     if p.status != "ok":
         return f"{p.status}: {p.reason}"
     zeta, fn = round(p.zeta, 3), round(p.fn, 2)
-    text = f"zeta = {zeta:.3f}, fn = {fn:.2f} Hz, R^2 = {p.r2:.3f}"
+    (zl, zh), (fl, fh) = p.zeta_interval, p.fn_interval
+    text = (f"zeta = {zeta:.3f} [{zl:.3f}, {zh:.3f}], fn = {fn:.2f} [{fl:.2f}, {fh:.2f}] Hz "
+            f"(90 % intervals), R^2 = {p.r2:.3f}")
     if leg is not None:
-        # of the (zeta, fn) shown, so the line is a function of what the reader sees
-        v = virtual_leg(zeta, fn, foot_mass(leg))
-        text += f"; at the foot m = {v.m:.3f} kg, b = {v.b:.2f} N s/m, k = {v.k:.0f} N/m"
+        # of the (zeta, fn) shown, so the line is a function of what the reader sees; b and k
+        # grow with zeta and fn, so the intervals' ends bound them
+        mass = foot_mass(leg)
+        v = virtual_leg(zeta, fn, mass)
+        lo = virtual_leg(max(zl, 1e-9), max(fl, 1e-9), mass)
+        hi = virtual_leg(zh, fh, mass)
+        text += (f"; at the foot m = {v.m:.3f} kg, b = {v.b:.2f} [{lo.b:.2f}, {hi.b:.2f}] N s/m, "
+                 f"k = {v.k:.0f} [{lo.k:.0f}, {hi.k:.0f}] N/m")
     return text
 
 
 def foot_setpoint(leg, resp) -> float:
-    """Foot height [m] the commanded step of ``resp`` asks for: the joints' start plus the
-    joint step of its motor step (exact five-bar)."""
-    dq1, dq2 = AxisMap.from_leg(leg).motor_step_to_joint_step(resp.step)
-    _, y = foot_position(leg, resp.q1[0] + dq1, resp.q2[0] + dq2)
-    return float(y)
+    """Foot height [m] the commanded step of ``resp`` asks for
+    (:func:`leglib.design.points.commanded_height`)."""
+    return commanded_height(resp, leg)
 
 
 def gain_step_panel(odrv, gm=None, pos_gain: float = 50.0, vel_gain: float = 0.046,
@@ -292,7 +301,7 @@ def gain_step_panel(odrv, gm=None, pos_gain: float = 50.0, vel_gain: float = 0.0
                           description="vel_int_gain", continuous_update=False, readout_format=".3f")
     readout = W.HTML()
     out = W.Output()
-    leg = getattr(odrv, "leg", None)
+    leg = odrv.leg   # the commanded foot height of each step, and eqs. 6.1/6.3 at the foot
     # the map's region is drawn once and kept as pixels; each step moves only its marker
     view = PanelFigure(out, 2, (12.5, 3.8), static=(1,) if gm is not None else ())
     a2 = view.axes[1]
@@ -304,7 +313,7 @@ def gain_step_panel(odrv, gm=None, pos_gain: float = 50.0, vel_gain: float = 0.0
 
     def redraw(*_):
         resp = step_response(odrv, s_pos.value, s_vel.value, s_int.value)
-        p = identify_response(resp)
+        p = identify_response(resp, leg)
         text = step_readout(resp, p, leg=leg)
         readout.value = f"<code class='leglib-readout'>{text}</code>"
         a1 = view.clear()[0]

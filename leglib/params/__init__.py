@@ -125,22 +125,36 @@ def _short(value: Any, limit: int = 60) -> str:
     return text if len(text) <= limit else text[:limit] + "...'"
 
 
-def _p(section: str, unit: str, check: str = "positive", bounds: tuple | None = None):
+def _p(section: str, unit: str, check: str = "positive", bounds: tuple | None = None,
+       plausible: tuple | None = None):
     """Field metadata: TOML section, expected SI unit, value check, plausible range.
 
     check is one of "positive", "nonnegative", "finite", "count" (positive integer),
     "index" (non-negative integer), "sign" (+1 or -1), "string" (plain TOML string, no unit).
     bounds is ``(low, high, why)``: the SI value must lie in [low, high] (None: no bound on
     that side), ``why`` says where the bound comes from; checked for file values and
-    keyword overrides alike.
+    keyword overrides alike. ``plausible`` has the same form: the physical range of a leg of
+    this class, which a loader's named flag (``allow_implausible``) may waive for a leg
+    that really is outside it.
     """
     meta = {"section": section, "unit": unit, "check": check}
     if bounds is not None:
         meta["bounds"] = bounds
+    if plausible is not None:
+        meta["plausible"] = plausible
     return field(metadata=meta)
 
 
 # plausible ranges of the fields a typo or a wrong unit makes absurd (SI, or the ODrive's units)
+# a leg of this class: a coaxial five-bar of two hobby BLDC motors (T-motor MN5212) through
+# 1:3 belts (Stanford Doggo: links 0.09 and 0.162 m, 55-100 g each, about 1e-3 kg m^2 of drive
+# inertia per joint); ten times beyond these on either side is a typo or a wrong unit
+_LENGTH = (0.01, 1.0, "a link of a leg of this class: Doggo's are 0.09 and 0.162 m")
+_MASS = (1e-3, 5.0, "a link of a leg of this class: Doggo's weigh 55-100 g, and its motors lift well under "
+                    "1 kg at the foot")
+_LINK_INERTIA = (None, 0.05, "a link's inertia about its centre of mass, at most m l^2 (about 2e-4 kg*m^2 for "
+                             "Doggo's lower link)")
+_DRIVE_INERTIA = (None, 0.05, "pulley, shaft and rotor through the belt (about 1e-3 kg*m^2 on the thesis's leg)")
 _CPR = (12, 1 << 24, "an ODrive encoder mode gives 12 (hall sensors) to 2^24 counts per turn")
 _VEL = (None, 300.0, "the MN5212 KV340 at the ODrive v3.6's 56 V turns at most 317 turn/s")
 
@@ -232,12 +246,15 @@ def _check_entry(where: str, key: str, value: Any, check: str, si_unit: str):
     return _check_value(where, key, value, check)
 
 
-def load_dataclass(cls, path: Path, overrides: dict[str, Any] | None = None):
+def load_dataclass(cls, path: Path, overrides: dict[str, Any] | None = None, allow_implausible: bool = False,
+                   flag_hint: str = ""):
     """Read ``path`` into dataclass ``cls`` whose fields carry :func:`_p` metadata.
 
     Every section, field and inline-table key of the file must be one the dataclass
     declares; ``overrides`` (SI values, by field name) replace file values and pass the
     same checks. Raises ParameterError naming the file (and line, where known) and field.
+    ``allow_implausible`` waives the ``plausible`` ranges (not the ``bounds``);
+    ``flag_hint`` is how the error tells the caller to waive them.
     """
     path = Path(path)
     doc, text = _read_toml(path)
@@ -305,8 +322,10 @@ def load_dataclass(cls, path: Path, overrides: dict[str, Any] | None = None):
         values[name] = _check_entry(f"{path} (keyword override)", f"{f.metadata['section']}.{name}", val,
                                     f.metadata["check"], f.metadata["unit"])
     for name, f in declared.items():
-        if "bounds" in f.metadata and not isinstance(values[name], str):
-            low, high, why = f.metadata["bounds"]
+        for kind in ("bounds", "plausible"):
+            if kind not in f.metadata or isinstance(values[name], str) or (kind == "plausible" and allow_implausible):
+                continue
+            low, high, why = f.metadata[kind]
             v = values[name]
             if (low is not None and v < low) or (high is not None and v > high):
                 sec = f.metadata["section"]
@@ -314,8 +333,9 @@ def load_dataclass(cls, path: Path, overrides: dict[str, Any] | None = None):
                       else _locate(path, text, sec, name))
                 rng = (f"[{low:g}, {high:g}]" if low is not None and high is not None
                        else f"at most {high:g}" if low is None else f"at least {low:g}")
+                waive = f"; {flag_hint} to use it anyway" if kind == "plausible" and flag_hint else ""
                 raise ParameterError(f"{at}: field '{sec}.{name}' = {v:g} {f.metadata['unit']} is implausible: "
-                                     f"it must be {rng} ({why})")
+                                     f"it must be {rng} ({why}){waive}")
     for name, allowed in _ENUMS.items():
         if name in values and values[name] not in allowed:
             sec = declared[name].metadata["section"]
@@ -336,24 +356,24 @@ class LegParams:
     link 1; the foot is the joint of links 3 and 4.
     """
 
-    l1: float = _p("geometry", "m")
-    l2: float = _p("geometry", "m")
-    l3: float = _p("geometry", "m")
-    l4: float = _p("geometry", "m")
-    m1: float = _p("mass", "kg")
-    m2: float = _p("mass", "kg")
-    m3: float = _p("mass", "kg")
-    m4: float = _p("mass", "kg")
+    l1: float = _p("geometry", "m", plausible=_LENGTH)
+    l2: float = _p("geometry", "m", plausible=_LENGTH)
+    l3: float = _p("geometry", "m", plausible=_LENGTH)
+    l4: float = _p("geometry", "m", plausible=_LENGTH)
+    m1: float = _p("mass", "kg", plausible=_MASS)
+    m2: float = _p("mass", "kg", plausible=_MASS)
+    m3: float = _p("mass", "kg", plausible=_MASS)
+    m4: float = _p("mass", "kg", plausible=_MASS)
     lc1: float = _p("com", "m")
     lc2: float = _p("com", "m")
     lc3: float = _p("com", "m")
     lc4: float = _p("com", "m")
-    I1: float = _p("inertia", "kg*m^2")
-    I2: float = _p("inertia", "kg*m^2")
-    I3: float = _p("inertia", "kg*m^2")
-    I4: float = _p("inertia", "kg*m^2")
-    Jd1: float = _p("inertia", "kg*m^2", "nonnegative")
-    Jd2: float = _p("inertia", "kg*m^2", "nonnegative")
+    I1: float = _p("inertia", "kg*m^2", plausible=_LINK_INERTIA)
+    I2: float = _p("inertia", "kg*m^2", plausible=_LINK_INERTIA)
+    I3: float = _p("inertia", "kg*m^2", plausible=_LINK_INERTIA)
+    I4: float = _p("inertia", "kg*m^2", plausible=_LINK_INERTIA)
+    Jd1: float = _p("inertia", "kg*m^2", "nonnegative", plausible=_DRIVE_INERTIA)
+    Jd2: float = _p("inertia", "kg*m^2", "nonnegative", plausible=_DRIVE_INERTIA)
     c11: float = _p("damping", "N*m*s/rad", "nonnegative")
     c12: float = _p("damping", "N*m*s/rad", "finite")
     c21: float = _p("damping", "N*m*s/rad", "finite")
@@ -630,13 +650,18 @@ def plant_names() -> list[str]:
     return _names("plant")
 
 
-def load_leg(name_or_path: str | Path = "thesis", **overrides) -> LegParams:
+def load_leg(name_or_path: str | Path = "thesis", allow_implausible: bool = False, **overrides) -> LegParams:
     """Load the nominal leg's parameters (geometry, masses, inertias, friction, the drive).
 
     Parameters
     ----------
     name_or_path : str or Path
         A set's name (``"thesis"`` -> ``leg_thesis.toml``, see :func:`search_path`) or a path.
+    allow_implausible : bool
+        Waive the physical plausibility ranges of the lengths, masses and inertias (a leg
+        of this class: links 0.01-1 m, 1 g-5 kg, a link's inertia at most m l^2 and 0.05
+        kg*m^2, a drive's at most 0.05 kg*m^2), for a leg that really is outside them. Off,
+        a value outside them is an error naming the file, line and field.
     **overrides
         Field values (SI) replacing the file's, e.g. ``g=0.0``.
 
@@ -652,12 +677,13 @@ def load_leg(name_or_path: str | Path = "thesis", **overrides) -> LegParams:
         beyond its link, or the five-bar cannot close at the operating point; the message
         names the file and field.
     """
-    leg = load_dataclass(LegParams, _resolve(name_or_path, "leg"), overrides)
-    _check_leg(leg)
+    leg = load_dataclass(LegParams, _resolve(name_or_path, "leg"), overrides, allow_implausible=allow_implausible,
+                         flag_hint="pass load_leg(..., allow_implausible=True)")
+    _check_leg(leg, allow_implausible)
     return leg
 
 
-def _check_leg(leg: "LegParams") -> None:
+def _check_leg(leg: "LegParams", allow_implausible: bool = False) -> None:
     """Relations between a leg's fields: ParameterError naming the file and field."""
     where = leg.source_file
     for i in (1, 2, 3, 4):
@@ -665,6 +691,12 @@ def _check_leg(leg: "LegParams") -> None:
         if lc > link:
             raise ParameterError(f"{where}: field 'com.lc{i}' = {lc:g} m lies beyond its link "
                                  f"(geometry.l{i} = {link:g} m)")
+        m, inertia = getattr(leg, f"m{i}"), getattr(leg, f"I{i}")
+        if not allow_implausible and inertia > m * link ** 2:
+            raise ParameterError(f"{where}: field 'inertia.I{i}' = {inertia:g} kg*m^2 is implausible: a link's "
+                                 f"inertia about its centre of mass is at most m{i} l{i}^2 = {m * link ** 2:g} "
+                                 f"kg*m^2 (all its mass at its far end); pass load_leg(..., allow_implausible=True) "
+                                 f"to use it anyway")
     if {leg.axis_of_q1, leg.axis_of_q2} != {0, 1}:
         raise ParameterError(f"{where}: fields 'drive.axis_of_q1' and "
                              f"'drive.axis_of_q2' must be 0 and 1 in some order")

@@ -23,6 +23,8 @@ from leglib.design.points import (
     identify_response,
 )
 from leglib.experiments.step import StepResponse, _responses_from_batch
+from leglib.model.drive import AxisMap
+from leglib.model.kinematics import foot_position
 
 
 def test_harmonic_fill_reproduces_harmonic_fields():
@@ -134,7 +136,7 @@ def test_map_from_files_equals_map_from_responses(twin_sweep):
     from_files = lg.GainMap.from_measurements(out)
     resp = _responses_from_batch(odrv, grid, odrv.sim.step_batch(
         grid, vel_limit=odrv.config.step_vel_limit, abort_error_turns=0.8), 0.4)
-    from_mem = lg.GainMap.from_responses(resp, workers=1)
+    from_mem = lg.GainMap.from_responses(resp, odrv.leg, workers=1)
     assert from_files.counts() == from_mem.counts()
     assert from_files.counts().get("unstable", 0) > 0  # the grid reaches instability
     ok = from_files.status == "ok"
@@ -166,7 +168,7 @@ def thesis_map():
     lg.calibrate(odrv)
     grid = lg.thesis_grid()
     out = odrv.sim.step_batch(grid, vel_limit=odrv.config.step_vel_limit, abort_error_turns=0.8)
-    gm = lg.GainMap.from_responses(_responses_from_batch(odrv, grid, out, 0.4), workers=1)
+    gm = lg.GainMap.from_responses(_responses_from_batch(odrv, grid, out, 0.4), odrv.leg, workers=1)
     return odrv, gm
 
 
@@ -179,14 +181,17 @@ def test_offered_points_agree_when_remeasured(thesis_map):
     requests = [(2.0, 3.0), (1.5, 4.0), (0.3, 2.5), (0.24, 5.0)]
     requests += [(a.zeta[i], a.fn[i]) for i in edges]
     requests += [tuple(x) for x in spread_targets(a, 12, margin=0.0, seed=2)]
-    errors = []
+    errors, held = [], []
     for z, f in requests:
         c = gm.nearest(z, f)
-        p = identify_response(lg.step_response(odrv, *c.gains))
+        p = identify_response(lg.step_response(odrv, *c.gains), odrv.leg)
         assert p.status == "ok", (z, f, c, p.reason)
         errors.append(max(abs(p.zeta / c.zeta - 1), abs(p.fn / c.fn - 1)))
+        held.append(c.zeta_interval[0] <= p.zeta <= c.zeta_interval[1] and c.fn_interval[0] <= p.fn <= c.fn_interval[1])
     errors = np.array(errors)
     assert np.median(errors) < 0.05 and errors.max() < 0.15, errors
+    # the map's 90 % intervals (its neighbours' interpolated) hold what is measured again
+    assert np.mean(held) >= 0.8, held
 
 
 def test_a_target_outside_the_region_is_refused_with_the_nearest_point(thesis_map):
@@ -221,15 +226,20 @@ def test_region_holds_only_measured_cells(thesis_map):
 def test_zero_gains_and_non_second_order_steps_are_failed(thesis_map):
     odrv, _ = thesis_map
     for gains in [(0.0, 0.0, 0.0), (20.0, 0.0, 0.0), (0.0, 0.05, 0.0)]:
-        p = identify_response(lg.step_response(odrv, *gains))
+        p = identify_response(lg.step_response(odrv, *gains), odrv.leg)
         assert p.status in ("failed", "unstable") and math.isnan(p.zeta), (gains, p)
-    # a step that overshoots by 110 %: no second-order step does
+    # a step that overshoots by 110 %: no second-order step does (the joints move along the
+    # commanded step of 0.1 motor turn and back, the foot height follows the five-bar)
+    leg = odrv.leg
     t = np.arange(750) * 0.002
-    y = 0.01 * (1 - np.exp(-20 * t) + 5.0 * 20 * t * np.exp(-20 * t))
-    assert (y.max() - y[-1]) / y[-1] > 1.0
-    resp = StepResponse(t=t, q1=t, q2=t, y=y, gains=(50.0, 0.05, 0.01), step=0.4)
-    p = identify_response(resp)
-    assert p.status == "failed" and math.isnan(p.zeta) and "not a second-order step" in p.reason
+    a = 1 - np.exp(-20 * t) + 5.0 * 20 * t * np.exp(-20 * t)
+    dq1, dq2 = AxisMap.from_leg(leg).motor_step_to_joint_step(0.1)
+    q1, q2 = leg.q1 + dq1 * a, leg.q2 + dq2 * a
+    y = foot_position(leg, q1, q2)[1]
+    assert (y.max() - y[-1]) / (y[-1] - y[0]) > 1.0
+    resp = StepResponse(t=t, q1=q1, q2=q2, y=y, gains=(50.0, 0.05, 0.01), step=0.1)
+    p = identify_response(resp, leg)
+    assert p.status == "failed" and math.isnan(p.zeta) and "not a second-order step" in p.reason, p.reason
 
 
 def test_counts_are_plain_python(synthetic):

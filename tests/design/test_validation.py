@@ -26,7 +26,7 @@ def dev():
 
 
 def test_a_known_answer_outside_and_unidentifiable_targets(dev):
-    p = identify_response(lg.step_response(dev, *STABLE))
+    p = identify_response(lg.step_response(dev, *STABLE), dev.leg)
     reachable = (p.zeta, p.fn)
     far = (3.0, 40.0)
     fails = (0.1, 2.0)
@@ -55,4 +55,34 @@ def test_a_validation_plots_itself(dev):
     matplotlib.use("Agg")
     v = lg.validate(dev, [(0.2, 3.0)], lambda t: (STABLE, 0, None, ""), "one")
     ax = v.plot()
-    assert ax.get_title() == "one: error per target" and len(ax.lines) == 2
+    assert ax.get_title() == "one: error per target"
+    # zeta and fn, each a marker at its error with its 90 % interval as a bar
+    bars = ax.containers
+    assert len(bars) == 2
+    r = v.rows[0]
+    for bar, e, (lo, hi) in zip(bars, r.error, r.error_interval):
+        (x,), (y,) = bar.lines[0].get_data()
+        assert y == pytest.approx(100 * e)
+        seg = bar.lines[2][0].get_segments()[0]
+        assert sorted(p[1] for p in seg) == pytest.approx([100 * lo, 100 * hi])
+
+
+def test_errors_are_intervals_and_reached_needs_them_inside_the_tolerance(dev):
+    """A target the check measures closely: its error interval holds its error, and it is
+    reached within a tolerance only when both intervals lie inside it."""
+    p = identify_response(lg.step_response(dev, *STABLE), dev.leg)
+    target = (p.zeta, p.fn)
+    v = lg.validate(dev, [target], lambda tg: (STABLE, 0, None, ""), "fixed", tolerance=0.05)
+    r = v.rows[0]
+    (zl, zh), (fl, fh) = r.error_interval
+    assert zl <= r.error[0] <= zh and fl <= r.error[1] <= fh
+    ok, why = r.reached(0.05)
+    inside = max(abs(zl), abs(zh), abs(fl), abs(fh)) <= 0.05
+    assert ok == inside and (why.startswith("reached") == inside)
+    s = v.summary()
+    assert s["worst_bound"] >= s["worst"] and s["reached"] == int(ok) and s["error_intervals"][0] == [[zl, zh],
+                                                                                                    [fl, fh]]
+    assert "90 % interval" in v.markdown() and "within ±5%?" in v.markdown()
+    # a tolerance below the intervals' half-width: the verdict says it cannot be told
+    ok, why = r.reached(1e-4)
+    assert not ok and "larger than the tolerance" in why

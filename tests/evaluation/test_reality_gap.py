@@ -63,7 +63,7 @@ def test_effects_off_give_the_numbers_of_the_kernel_without_them():
     lg.configure(d)
     lg.calibrate(d)
     s = lg.step_response(d, 40, 0.08, 0.01)
-    assert _fp(np.round(np.degrees(s.q1) * 1e6)) == "3b35ed920470bb62"
+    assert _fp(np.round(np.degrees(s.q1) * 1e6)) == "80a13ecb97153fd8"
     assert _fp(d.sim.st.AI[0, :, L.I_COUNTS]) == "20d7f70f65e3b03e"
 
 
@@ -489,7 +489,7 @@ def test_calibration_and_steps_work_on_seeds_0_to_9(name, payload):
             assert read == pytest.approx(true, abs=1.0), (name, seed, j)
         if seed % 5 == 0:
             r = lg.step_response(dev, 40, 0.08, 0.01)
-            assert identify_response(r).status == "ok", (name, seed)
+            assert identify_response(r, dev.leg).status == "ok", (name, seed)
 
 
 @pytest.mark.parametrize("name", MISMATCHED)
@@ -499,12 +499,12 @@ def test_the_thesis_grid_runs_and_moderate_gains_are_second_order_steps(name):
     lg.calibrate(dev)
     grid = lg.thesis_grid()
     out = dev.sim.step_batch(grid, vel_limit=dev.config.step_vel_limit, abort_error_turns=0.8)
-    ids = identify_many(_responses_from_batch(dev, grid, out, 0.4))
+    ids = identify_many(_responses_from_batch(dev, grid, out, 0.4), dev.leg)
     unstable = sum(r.status == "unstable" for r in ids)
     assert unstable < 0.2 * len(grid)      # default: 33 of 400
     moderate = np.array([[p, v, 0.01] for p in (20, 40, 60) for v in (0.03, 0.09, 0.15)])
     out = dev.sim.step_batch(moderate, vel_limit=dev.config.step_vel_limit, abort_error_turns=0.8)
-    ids = identify_many(_responses_from_batch(dev, moderate, out, 0.4))
+    ids = identify_many(_responses_from_batch(dev, moderate, out, 0.4), dev.leg)
     assert [r.status for r in ids] == ["ok"] * len(moderate), [(r.gains, r.reason) for r in ids]
 
 
@@ -514,8 +514,9 @@ TARGET_GAINS = [(50, 0.023, 0.01), (55, 0.023, 0.01), (50, 0.026, 0.01), (55, 0.
 
 
 def _identified(plant, gains, seed=1):
-    res = twin_step_responses(Twin(plant, seed=seed), gains)
-    return res, identify_many(res)
+    tw = Twin(plant, seed=seed)
+    res = twin_step_responses(tw, gains)
+    return res, identify_many(res, tw.nominal_leg)
 
 
 @pytest.mark.parametrize("payload", [0.0, 0.3])

@@ -24,7 +24,7 @@ STABLE = (50.0, 0.046, 0.001)
 
 # the operations that arm the motors, each short (every transaction of each is cut)
 OPERATIONS = {
-    "calibrate": lambda d: lg.calibrate(d, zero=False, poll=0.16),
+    "calibrate": lambda d: lg.calibrate(d, zero=False, poll=0.16, force=True),   # the board is ready: forced
     "return_to_rest": lambda d: return_to_rest(d, move_time=0.3, settle=0.05),
     "step_response, polled": lambda d: lg.step_response(d, *STABLE, duration=0.06, settle=0.02, path="polled"),
     "step_response, batched": lambda d: lg.step_response(d, *STABLE, duration=0.3, settle=0.02, path="batched"),
@@ -132,7 +132,7 @@ def test_calibration_runs_under_the_watchdog(dev):
     faults = _Faults(dev.sim, disconnect=30)
     with pytest.raises(lg.LeglibError), warnings.catch_warnings():
         warnings.filterwarnings("ignore", "could not set IDLE")
-        lg.calibrate(dev, zero=False)
+        lg.calibrate(dev, zero=False, force=True)   # the board is ready: only a forced calibration moves
     faults.remove()
     assert dev.sim.st.AI[0, 0, L.I_MODE] == L.MODE_CALIB            # armed when the link went ...
     assert _idle_within(dev.sim, setup.CALIBRATION_WATCHDOG)          # ... and disarmed by the watchdog

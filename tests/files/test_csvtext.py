@@ -267,7 +267,7 @@ def test_sweep_reads_back_and_maps_as_before(dev, tmp_path):
     assert _bits(np.concatenate([np.column_stack([m.t, m.angle1, m.angle2]) for m in ms])) == _bits(ref)
     assert _python_csv(ref) == raw  # what was written is Python's text of these numbers
     # the map as identifying the measurements one by one builds it
-    old = [identify_response(StepResponse.from_measurement(m, leg)) for m in ms]
+    old = [identify_response(StepResponse.from_measurement(m, leg), leg) for m in ms]
     new = lg.GainMap.from_measurements(tmp_path).points
     assert [(p.gains, p.status, p.reason) for p in new] == [(p.gains, p.status, p.reason) for p in old]
     assert _bits([(p.zeta, p.wn, p.r2) for p in new]) == _bits([(p.zeta, p.wn, p.r2) for p in old])

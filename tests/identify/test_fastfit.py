@@ -128,8 +128,8 @@ def test_sweep_batch_equals_one_by_one_on_the_twin():
     grid = np.array([(p, v, i) for p in (20.0, 50.0) for v in (0.002, 0.03, 0.15) for i in (0.002, 0.08)])
     out = odrv.sim.step_batch(grid, vel_limit=odrv.config.step_vel_limit, abort_error_turns=0.8)
     responses = _responses_from_batch(odrv, grid, out, 0.4)
-    many = identify_many(responses)
-    one = [identify_response(r) for r in responses]
+    many = identify_many(responses, odrv.leg)
+    one = [identify_response(r, odrv.leg) for r in responses]
     assert [repr(p) for p in many] == [repr(p) for p in one]  # NaN where unstable: compare text
     assert {p.status for p in many} >= {STATUS_OK}
     assert all(math.isfinite(p.zeta) and p.r2 >= F.MIN_R2 for p in many if p.status == STATUS_OK)

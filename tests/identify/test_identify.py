@@ -271,3 +271,50 @@ def test_fit_friction_refuses_bad_arguments_by_name(kw, message):
     args.update(kw)
     with pytest.raises(IdentificationError, match=message):
         fit_friction(**args)
+
+
+def test_one_torque_level_is_not_identifiable_and_two_are():
+    """A constant-torque run from rest fixes Coulomb + viscous x plateau velocity and the rise's
+    inertia / viscous: three unknowns, two numbers. The fit says so, names the experiment
+    that would identify them, and gives no Coulomb number; two levels identify all three,
+    with 90 % intervals that hold the truth."""
+    J, b, c, dt = 2e-3, 0.01, 0.006, 0.002
+    rng = np.random.default_rng(5)
+
+    def run(levels):
+        tau = np.concatenate([np.full(750, lv) for lv in levels])
+        t = np.arange(tau.size) * dt
+        return t, tau, _simulate_joint(t, tau, J, b, c, c, 0.0, 0.002) + rng.normal(0, 0.01, t.size)
+
+    t, tau, v = run([0.03])
+    one = fit_friction(t, tau, velocity=v)
+    assert math.isnan(one.coulomb_pos) and math.isnan(one.coulomb) and not one.identified_pos
+    for name in ("coulomb_pos", "viscous", "inertia"):
+        assert "one torque level" in one.not_identifiable[name] and "two torque levels" in one.not_identifiable[name]
+        assert all(math.isnan(x) for x in one.intervals[name])
+    assert "never moved in the negative direction" in one.not_identifiable["coulomb_neg"]
+    assert "not identifiable: one torque level" in one.table()
+    # with the inertia known, the rise gives the viscous term: identifiable
+    known = fit_friction(t, tau, velocity=v, inertia=J)
+    assert "coulomb_pos" not in known.not_identifiable
+    t, tau, v = run([0.03, 0.05])
+    two = fit_friction(t, tau, velocity=v)
+    assert set(two.not_identifiable) == {"coulomb_neg"}
+    for name, true in (("coulomb_pos", c), ("viscous", b), ("inertia", J)):
+        lo, hi = two.intervals[name]
+        assert lo <= true <= hi and lo < getattr(two, name) < hi, name
+    assert "[" in two.table()
+
+
+def test_a_value_on_its_bound_is_not_identified():
+    """No Coulomb friction in the data, a sine of the torque: the fit puts Coulomb on its bound
+    0 (or near it); a value on the bound is reported as not identified, never as 0.0000."""
+    tau = 0.03 * np.sin(2 * np.pi * 0.7 * TF)
+    v = _simulate_joint(TF, tau, 0.004, 0.01, 0.0, 0.0, 0.0, 0.01)
+    f = fit_friction(TF, tau, velocity=v, eps=0.01)
+    for name in ("coulomb_pos", "coulomb_neg"):
+        if name in f.not_identifiable:
+            assert "bound 0" in f.not_identifiable[name] and math.isnan(getattr(f, name))
+        else:
+            assert getattr(f, name) > 1e-6 * 0.03
+    assert "coulomb_pos" in f.not_identifiable or "coulomb_neg" in f.not_identifiable

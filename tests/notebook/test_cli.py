@@ -124,3 +124,72 @@ def test_batch_on_a_live_scheduler(tmp_path, monkeypatch, capsys):
     out = capsys.readouterr().out
     assert code == 0 and "2 runs done, 0 failed or not run" in out
     assert (tmp_path / "out" / "x" / "index.html").exists()
+
+
+# ---------------------------------------------------------------------------------------
+# python -m leglib design
+# ---------------------------------------------------------------------------------------
+
+def test_design_help_lists_the_defaults(capsys):
+    assert _exit_code(["design", "--help"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    for text in ("{virtual,usb}", "(default: virtual)", "(default: 0.24)", "(default: 5)", "(default: 10)",
+                 "1 to 50", "longest run allowed on the real leg [min] (default: 5)", "(default: thesis)",
+                 "(default: 10 s)", "(default: not saved)", "Exit code 0 when the target was reached, 1 when not"):
+        assert text in out, text
+    assert all(n in out for n in plant_names())
+
+
+@pytest.mark.parametrize("argv, where", [
+    (["--zeta", "-1"], "argument --zeta"), (["--fn", "0"], "argument --fn"), (["--fn", "many"], "argument --fn"),
+    (["--max-experiments", "0"], "argument --max-experiments"), (["--max-minutes", "0"], "argument --max-minutes"),
+    (["--backend", "serial"], "argument --backend"), (["--plant", "nope"], "argument --plant"),
+    (["--leg", "nope"], "no parameter set named 'nope'"), (["--odrive-config", "nope"], "odrive_nope.toml"),
+    (["--backend", "usb", "--seed", "3"], "--seed, --plant and --payload are the twin's"),
+])
+def test_design_refuses_a_bad_argument_in_one_line(capsys, argv, where):
+    assert _exit_code(["design", *argv]) == 2
+    assert where in _one_error_line(capsys.readouterr().err)
+
+
+def test_design_on_the_twin_reports_the_rehearsal_and_saves(tmp_path, capsys):
+    from leglib.design import saved
+    path = tmp_path / "designs" / "leg.json"
+    code = main(["design", "--seed", "5", "--max-experiments", "4", "--save", str(path)])
+    out = capsys.readouterr().out
+    lines = out.splitlines()
+    assert lines[0].startswith("rehearsal on the twin: on the leg this run will do the configuration saved (1 reboot), "
+                               "2 axes calibrated, 4 steps: about 4")
+    assert any(ln.startswith("target zeta 0.24, fn 5 Hz: reached in") for ln in lines) == (code == 0)
+    assert any(ln.startswith("Rehearsal on the twin: on the leg this run would do 1 configuration saved, 1 reboot, "
+                             "2 axes calibrated") for ln in lines)
+    d = saved.load(path, kind="cascade_gains")
+    assert d.method == "tune" and d.target == (0.24, 5.0) and f"wrote {path}" in out
+
+
+@pytest.fixture
+def twin_on_usb(monkeypatch, tmp_path):
+    """``odrive.find_any`` answers with the virtual board of seed 26 (leglib's USB code path)."""
+    import functools
+    odrive = pytest.importorskip("odrive")
+    from leglib.device.virtual import find_any
+    monkeypatch.setenv("LEGLIB_STATE_DIR", str(tmp_path / "state"))
+    monkeypatch.setattr(odrive, "find_any", functools.partial(find_any, seed=26))
+
+
+def test_design_on_the_leg_is_refused_past_its_limit_with_the_estimate(twin_on_usb, capsys):
+    assert _exit_code(["design", "--backend", "usb", "--max-experiments", "50", "--max-minutes", "1"]) == 2
+    captured = capsys.readouterr()
+    line = _one_error_line(captured.err)
+    assert line.startswith("error: this run (the configuration saved (1 reboot), 2 axes calibrated, 50 steps) takes "
+                           "about 3.") and "set --max-minutes to at least 4 to run it" in line
+    assert "configure:" not in captured.out                # refused before anything was done
+
+
+def test_design_on_the_leg_runs_within_its_limit(twin_on_usb, capsys):
+    code = main(["design", "--backend", "usb", "--max-experiments", "2"])
+    out = capsys.readouterr().out
+    assert code in (0, 1)
+    assert out.startswith("on the leg: the configuration saved (1 reboot), 2 axes calibrated, 2 steps: about ")
+    assert "configure: 6 stored value(s) differ" in out and "calibrate: axis0 and axis1 calibrated" in out
+    assert "On the leg: 1 configuration saved, 1 reboot, 2 axes calibrated, " in out

@@ -10,8 +10,8 @@ import pytest
 from leglib import model as M
 from leglib.design import saved as designs
 from leglib.design import statefeedback as SF
+from leglib.notebook import findings, widgets
 from leglib.notebook import run as notebooks
-from leglib.notebook import widgets
 from leglib.notebook.run import count_figures, execute, notebook_paths
 
 NOTEBOOKS = notebook_paths()
@@ -101,6 +101,34 @@ def _run(path, tmp_path, **params):
     return metrics
 
 
+def _check_rehearsal(m, exact: bool = False):
+    """The notebook's bench report: on a fresh twin it configures (one reboot) and calibrates
+    both axes once, however many sessions it opens; the estimate made before anything moved
+    is an upper bound of the rehearsed bench time (``exact``: the same within 2 %)."""
+    b = m["bench"]
+    assert b["backend"] == "virtual" and b["summary"].startswith("Rehearsal on the twin: on the leg this run would do")
+    assert b["counts"]["save"] == b["counts"]["reboot"] == 1 and b["counts"]["calibration"] == 2
+    assert b["planned_s"] >= 0.99 * b["bench_s"] > 0
+    if exact:
+        assert b["bench_s"] == pytest.approx(b["planned_s"], rel=0.02)
+    assert b["limit_s"] == 300.0
+
+
+def _check_findings(executed, stem, m):
+    """The notebook's "What we found" is findings.render of its metrics, shown as such, and
+    every number it quotes is one of them."""
+    text = findings.render(stem, m)
+    assert findings.unquoted(text, m) == [], findings.unquoted(text, m)
+    shown = [o["data"]["text/markdown"] for c in nbformat.read(str(executed), as_version=4).cells
+             if c.cell_type == "code" for o in c.get("outputs", []) if "text/markdown" in o.get("data", {})]
+    assert any(text in md and "What we found" in md for md in shown), "the findings shown are not the metrics'"
+    return text
+
+
+def _inside(value, interval):
+    return interval[0] <= value <= interval[1]
+
+
 @pytest.mark.notebook
 def test_01_derivation(tmp_path):
     m = _run(NOTEBOOKS[0], tmp_path)
@@ -115,6 +143,11 @@ def test_01_derivation(tmp_path):
     g2 = m["g2_sign"]
     assert g2["supported"] == "+" and abs(g2["A32_exact"]) > 10 * abs(g2["A32_eq54"])
     assert len({round(r["A10"], 3) for r in m["eq511_sensitivity"]}) == len(m["eq511_sensitivity"]) > 1
+    text = _check_findings(tmp_path / NOTEBOOKS[0].name, NOTEBOOKS[0].stem, m)
+    # eq. 5.11 is claimed for the thesis's leg; the chapter-5/6 mismatch in numbers
+    assert m["leg_is_thesis"] and "reproduces eq. 5.11" in text and "what it cannot" in text
+    mm = m["mismatch"]
+    assert mm["model"]["zeta"] > 3 * mm["thesis_result_as_true"]["zeta"]   # chapter 5 damps far more
 
 
 @pytest.mark.notebook
@@ -155,6 +188,20 @@ def test_02_friction_fitting(processed):
     assert (tmp_path / "figures" / "02_listing77_peaks.png").exists()
     assert (tmp_path / "processed" / "friction_identified.json").exists()
     assert len(list((tmp_path / "raw").glob("*_torque.csv"))) == 1
+    _check_rehearsal(m, exact=True)
+    assert m["bench"]["counts"]["torque"] == 1 and m["bench"]["counts"]["step"] == 1   # the rig is not the leg
+    # every number with its interval: the step's (zeta, fn), the friction values
+    s = m["step_fit"]
+    assert _inside(s["zeta"], s["zeta_interval"]) and _inside(s["fn"], s["fn_interval"])
+    assert s["classifier"]["status"] == "ok"
+    f = m["friction"]
+    assert all(_inside(f["params"][k], f["intervals"][k]) for k in ("viscous1", "viscous2", "coulomb1", "coulomb2")
+               if k not in f["not_identifiable"])
+    # Listing 7.7 on this step counts the quantized tail's ripple: a failure, and said so
+    th = m["step_thesis_reading"]
+    text = _check_findings(tmp_path / "02_friction_fitting.ipynb", "02_friction_fitting", m)
+    if th["problem"]:
+        assert "the listing fails here" in text
 
 
 @pytest.mark.notebook
@@ -176,6 +223,8 @@ def test_03_pole_placement(processed, tmp_path):
     assert runs["thesis design: playback"]["overshoot_pct"] > 3 * runs["identified: playback"]["overshoot_pct"]
     assert 400 < m["live_rate_hz"] < 600
     assert m["readout"].startswith("K = [")
+    _check_rehearsal(m)
+    assert m["bench"]["counts"]["torque"] == 4 and m["bench"]["counts"]["hold"] == 2
 
 
 @pytest.fixture(scope="module")
@@ -204,6 +253,12 @@ def test_04_pid_sweeps(sweep04):
         if row["true_zeta"] >= 0.2:
             assert row["thesis_zeta"] < 0.5 * row["true_zeta"]
     assert bias["target_as_true"]["zeta"] < 0.24 and bias["grid"]["points"] > 0
+    _check_rehearsal(m)
+    assert m["bench"]["counts"]["sweep"] == 1 and m["bench"]["counts"]["step"] == 32 + 2
+    t = m["thesis_target_nearest"]
+    assert _inside(t["zeta"], t["zeta_interval"]) and _inside(t["fn"], t["fn_interval"])
+    assert m["listing_reach"]["max_thesis_zeta"] < m["listing_reach"]["thesis_result_zeta"]
+    _check_findings(out / NOTEBOOKS[3].name, NOTEBOOKS[3].stem, m)
 
 
 @pytest.mark.notebook
@@ -232,6 +287,19 @@ def test_05_validation(sweep04, tmp_path):
             assert tm["error_zeta"] < -0.1
     assert m["virtual_leg"]["achieved"]["k"] > 0
     assert m["summary"]["model"]["experiments"] < m["summary"]["map"]["experiments"]
+    _check_rehearsal(m)
+    assert "sweep" not in m["bench"]["counts"]             # 04's sweep was there
+    # the thesis's target with its interval and what the interval allows; the errors' bounds
+    t = m["thesis_target"]
+    assert _inside(t["zeta"], t["zeta_interval"]) and _inside(t["fn"], t["fn_interval"]) and t["verdict"]
+    assert all(v["worst_bound"] >= v["worst"] for v in m["summary"].values())
+    text = _check_findings(tmp_path / NOTEBOOKS[4].name, NOTEBOOKS[4].stem, m)
+    # it leads with the thesis-measure result, the measured maximum against the thesis's 0.229
+    reach = m["thesis_measure"]["listing_reach"]
+    first = text.splitlines()[0]
+    assert "thesis's own measure" in first and f"{reach['thesis_result_zeta']:.3f}" in first
+    if not tm["reached"]:
+        assert f"{reach['max_thesis_zeta']:.3f}" in first
 
 
 @pytest.mark.notebook

@@ -97,7 +97,7 @@ def test_gain_panel_shows_fit_and_refuses_non_second_order_steps(leg):
         s_pos.value = 30.0
         shown = readout.value
         r = lg.step_response(dev, 30.0, s_vel.min, 0.0)
-    p = identify_response(r)
+    p = identify_response(r, dev.leg)
     assert p.status != "ok" and "zeta" not in shown, shown
     assert ("not a second-order step" in shown) == (p.status == "failed")
 

@@ -1,0 +1,297 @@
+"""Each notebook's "What we found", written from its metrics JSON.
+
+A notebook writes its metrics (:func:`leglib.notebook.setup.write_metrics`) and then shows
+:func:`render` of them, so its conclusions are made of the numbers its cells computed and
+cannot contradict them. :func:`unquoted` is the check: every number a text quotes must be
+one of the metrics' values as printed (references such as "eq. 5.11" or "Listing 7.7" are
+not quotes).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+
+
+def read_metrics(path) -> dict:
+    """A notebook's metrics JSON (the file :func:`leglib.notebook.setup.write_metrics` wrote)."""
+    p = Path(path)
+    try:
+        return json.loads(p.read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{p}: no metrics file; the notebook's metrics cell writes it") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{p}: not a metrics file ({exc})") from None
+
+
+def _iv(pair, digits: int, kind: str = "f") -> str:
+    lo, hi = pair
+    return f"[{lo:.{digits}{kind}}, {hi:.{digits}{kind}}]"
+
+
+def _pct(x: float, digits: int = 1, sign: bool = True) -> str:
+    return f"{100 * x:{'+' if sign else ''}.{digits}f} %"
+
+
+# ---------------------------------------------------------------------------------------
+# 01: the derivation
+# ---------------------------------------------------------------------------------------
+
+def derivation(m: dict) -> str:
+    """Notebook 01: what the derivation reproduces (eq. 5.11 only for the thesis's leg), the
+    thesis's inconsistencies, and which of the thesis's numbers the virtual leg reproduces
+    and which it cannot."""
+    out = []
+    err = m["eq511_max_rel_error"]
+    if m["leg_is_thesis"] and err < 0.01:
+        out.append(f"- With the thesis's leg (`{m['leg_file_name']}`) the derivation reproduces eq. 5.11 to a largest "
+                   f"relative error of {err:.1e}.")
+    elif m["leg_is_thesis"]:
+        out.append(f"- With the thesis's leg the derivation does **not** reproduce eq. 5.11: largest relative error "
+                   f"{err:.1e}.")
+    else:
+        out.append(f"- This leg (`{m['leg_file_name']}`) is not the thesis's: its linearization differs from eq. 5.11 "
+                   f"by up to {err:.1e} (relative). Eq. 5.11 is the thesis's leg's; it is reproduced only with the "
+                   f"shipped `leg_thesis.toml`.")
+    a33 = m["printed_A33"]
+    out.append(f"- A as printed (`A[3,3]` = {a33:+.2f}) has an eigenvalue with real part "
+               f"{m['printed_A_max_real_eig']:+.1f} 1/s: unstable; with {-a33:+.2f} the largest real part is "
+               f"{m['corrected_A_max_real_eig']:+.2f} 1/s.")
+    out.append(f"- Near the operating point the linear model follows the nonlinear one to "
+               f"{m['linear_vs_nonlinear_rms_deg']:.3f} deg RMS over {m['linear_vs_nonlinear_travel_deg']:.2f} deg "
+               f"of travel.")
+    out.append(f"- The thesis's parallelogram model (a) and the exact five-bar (b) differ in inertia by "
+               f"{_pct(m['inertia_rel_difference_median'], sign=False)} (median) up to "
+               f"{_pct(m['inertia_rel_difference_max'], sign=False)} over the working range.")
+    mm = m["mismatch"]
+    model, true = mm["model"], mm["thesis_result_as_true"]
+    twin = m["twin_plant_model"]
+    damped = (f"zeta {model['zeta']:.2f} at fn {model['fn']:.2f} Hz" if math.isfinite(model["zeta"])
+              else "no second-order step")
+    out.append(f"- **The chapter-5/6 mismatch.** With chapter 5's damping ({mm['viscous']:.3f} N m s/rad at the "
+               f"joint) one cascade axis on this leg steps with {damped} at Fig. 6.9's gains; the thesis's "
+               f"validated reading (zeta {mm['thesis_result']['zeta']:.3f} at {mm['thesis_result']['f_hz']:.2f} Hz by "
+               f"Listing 7.7) is, as an ideal {mm['step_deg']:.0f} deg step, a true zeta of {true['zeta']:.3f}: the leg it measured was "
+               f"damped far less than chapter 5's model.")
+    out.append(f"- **What the virtual leg reproduces, and what it cannot.** The twin's plant is built with little "
+               f"damping ({twin['viscous']:.4f} N m s/rad, {m['twin_plant_name']} plant) and Coulomb friction: "
+               f"the same model gives zeta {twin['model']['zeta']:.2f} at Fig. 6.9's gains, so it reproduces the "
+               f"direction of the mismatch (far below chapter 5's damping) in the true measure. It does not reproduce "
+               f"the thesis's measured response itself: that true zeta of {true['zeta']:.3f} is far below the twin's, "
+               f"and Listing 7.7 reads the twin's steps far below the thesis's {mm['thesis_result']['zeta']:.3f} "
+               f"(notebook 05 measures by how much).")
+    return "\n".join(out)
+
+
+# ---------------------------------------------------------------------------------------
+# 02: friction and the second-order identification
+# ---------------------------------------------------------------------------------------
+
+def friction(m: dict) -> str:
+    """Notebook 02: the friction fit (values with intervals, or not identifiable), the single
+    joint's, and the Fig. 6.9 step in both measures."""
+    out = [f"- The identified five-bar reproduces the measured angles to {max(m['rms_deg']):.4f} deg RMS (nominal "
+           f"model before: {max(m['rms_before_deg']):.2f} deg); preferred friction model: {m['preferred_model']}."]
+    f = m["friction"]
+    for name in ("viscous1", "viscous2", "coulomb1", "coulomb2"):
+        if name in f["not_identifiable"]:
+            out.append(f"- {name}: not identifiable: {f['not_identifiable'][name]}")
+    shown = [f"{k} {f['params'][k]:.4g} {_iv(f['intervals'][k], 4, 'g')}" for k in ("viscous1", "viscous2", "coulomb1",
+                                                                            "coulomb2")
+             if k not in f["not_identifiable"]]
+    if shown:
+        out.append("- Friction per joint (90 % intervals; viscous N m s/rad, Coulomb N m): " + ", ".join(shown) + ".")
+    if m["recovery_rel_error"]:
+        worst = max(m["recovery_rel_error"], key=lambda k: abs(m["recovery_rel_error"][k]))
+        out.append(f"- Against the twin's hidden truth the largest relative error is "
+                   f"{_pct(m['recovery_rel_error'][worst])} ({worst}).")
+    sj = m["single_joint"]
+    if sj:
+        parts = []
+        for name, unit in (("coulomb", "N m"), ("viscous", "N m s/rad"), ("inertia", "kg m²")):
+            why = sj["not_identifiable"].get(name)
+            parts.append(f"{name}: not identifiable ({why})" if why else
+                         f"{name} {sj[name]:.4g} {_iv(sj['intervals'][name], 4, 'g')} {unit}")
+        out.append(f"- The single-joint fit, from {sj['directions']} direction(s): " + "; ".join(parts) + ".")
+    s = m["step_fit"]
+    out.append(f"- The Fig. 6.9 step identifies as zeta {s['zeta']:.3f} {_iv(s['zeta_interval'], 3)}, fn "
+               f"{s['fn']:.2f} {_iv(s['fn_interval'], 2)} Hz (90 % intervals; R² {s['r2']:.3f}).")
+    th = m["step_thesis_reading"]
+    if th["problem"]:
+        out.append(f"- Listing 7.7 on the same step reads zeta {th['zeta']:.3f}, but **the listing fails here**: "
+                   f"{th['problem']}.")
+    else:
+        out.append(f"- Listing 7.7 on the same step reads zeta {th['zeta']:.3f} at {th['f_hz']:.2f} Hz "
+                   f"(its own, biased measure).")
+    return "\n".join(out)
+
+
+# ---------------------------------------------------------------------------------------
+# 04: the sweep and the map
+# ---------------------------------------------------------------------------------------
+
+def sweeps(m: dict) -> str:
+    """Notebook 04: what the sweep identified, the achievable region, the thesis's target in
+    both measures and what Listing 7.7 reads of the sweep."""
+    c = m["counts"]
+    out = [f"- {m['points']} steps: {c.get('ok', 0)} second-order steps, {c.get('unstable', 0)} unstable, "
+           f"{c.get('failed', 0)} failed (not second-order steps, each with its reason; "
+           f"{m['failed_not_reaching']} of them end more than half the step short of their commanded final value)."]
+    if m["achievable"]:
+        out.append(f"- Achievable: zeta {m['zeta_range'][0]:.2f} to {m['zeta_range'][1]:.2f}, fn "
+                   f"{m['fn_range'][0]:.2f} to {m['fn_range'][1]:.2f} Hz ({m['achievable']} fine-grid points).")
+    else:
+        out.append("- The map has no achievable region: no grid cell has all its corners identified.")
+    t = m["thesis_target_nearest"]
+    if t:
+        out.append(f"- The thesis's numbers ({t['target'][0]:.2f}, {t['target'][1]:g} Hz) taken as true zeta and fn are "
+                   f"{'inside' if t['inside'] else 'outside'} this region; the map's nearest point: zeta "
+                   f"{t['zeta']:.3f} {_iv(t['zeta_interval'], 3)}, fn {t['fn']:.2f} {_iv(t['fn_interval'], 2)} Hz "
+                   f"(90 % intervals).")
+    reach = m["listing_reach"]
+    if reach["points"]:
+        out.append(f"- In the thesis's measure Listing 7.7 reads at most zeta {reach['max_thesis_zeta']:.3f} over the "
+                   f"{reach['points']} points with a usable reading; the thesis read {reach['thesis_result_zeta']:.3f} "
+                   f"on its leg.")
+    b = m["thesis_reading_bias"]["grid"]
+    fails = b["ripple"] + b["flagged"]
+    if fails:
+        out.append(f"- Listing 7.7 fails outright on {fails} of the second-order steps (its second peak is the "
+                   f"settled tail's ripple, or fewer than two peaks) and counts more peaks than cycles on "
+                   f"{b['many_peaks']} more.")
+    if b["points"]:
+        z = b["zeta_rel_error_min_median_max"]
+        out.append(f"- Where both measures read a step, Listing 7.7's zeta lies {_pct(z[1])} (median) from the true "
+                   f"zeta ({_pct(z[0])} to {_pct(z[2])}).")
+    return "\n".join(out)
+
+
+# ---------------------------------------------------------------------------------------
+# 05: validation
+# ---------------------------------------------------------------------------------------
+
+def validation(m: dict) -> str:
+    """Notebook 05: first the thesis-measure result (what Listing 7.7 reads on the twin at
+    most, against the thesis's 0.229), then the thesis's target in the true measure with
+    its interval and verdict, the methods' errors with their intervals, and the design study."""
+    out = []
+    tm = m["thesis_measure"]
+    reach = tm["listing_reach"]
+    target = tm["target"]
+    if tm["reached"]:
+        out.append(f"- **In the thesis's own measure** the twin reaches the thesis's target (zeta {target['zeta']:.2f} "
+                   f"at {target['f_hz']:.2f} Hz by Listing 7.7) within 10 %.")
+    elif reach["points"]:
+        out.append(f"- **In the thesis's own measure the twin does not reproduce the thesis.** Listing 7.7 reads at "
+                   f"most zeta {reach['max_thesis_zeta']:.3f} on any of the {reach['points']} swept points with a "
+                   f"usable reading, where the thesis measured {reach['thesis_result_zeta']:.3f} on its leg and "
+                   f"targeted {target['zeta']:.2f}: the twin's least-damped second-order steps (true zeta "
+                   f"{reach['min_true_zeta']:.2f}) decay too fast between the first two peaks. The step at the "
+                   f"gains nearest the target reads zeta {m['thesis_reading']['zeta']:.3f} "
+                   f"({_pct(tm['error_zeta'])} from the target).")
+    else:
+        out.append("- **In the thesis's own measure** Listing 7.7 reads no swept point of the twin: it fails on "
+                   "every one.")
+    t = m["thesis_target"]
+    out.append(f"- Taken as true zeta and fn, the thesis's target ({t['target'][0]:.2f}, {t['target'][1]:g} Hz) is "
+               f"{'inside' if t['inside_region'] else 'outside'} the map's achievable region; the map's gains give "
+               f"zeta {t['zeta']:.3f} {_iv(t['zeta_interval'], 3)}, fn {t['fn']:.2f} {_iv(t['fn_interval'], 2)} Hz "
+               f"(90 % intervals), {_pct(t['error_zeta'])} and {_pct(t['error_fn'])} from the target; "
+               f"{t['verdict']} (tolerance {_pct(t['tolerance'], 0, False)}).")
+    for method, v in m["summary"].items():
+        reached = (f"; {v['reached']} reached within {_pct(v['tolerance'], 0, False)} by their intervals, "
+                   f"{v['undecided']} with intervals wider than that" if "reached" in v else "")
+        out.append(f"- {method}: median error {_pct(v['median'], sign=False)}, worst {_pct(v['worst'], sign=False)} "
+                   f"(the 90 % intervals allow up to {_pct(v['worst_bound'], sign=False)}) over {v['targets']} "
+                   f"targets, {v['unidentified']} not identifiable, {v['experiments']} experiments{reached}.")
+    outside = m["summary"]["map"]["outside_region"] if "map" in m["summary"] else 0
+    if outside:
+        out.append(f"- {outside} target(s) outside the map's region: the map has no answer there.")
+    d = m["design_study"]
+    if d and "all" in d:
+        a = d["all"]
+        out.append(f"- tune on {m['design_plants']} plant(s): median error {_pct(a['median'], sign=False)}, worst "
+                   f"{_pct(a['worst'], sign=False)}, at most {a['max_experiments']} experiments per target; "
+                   f"{a['reached']} of {a['targets']} targets confirmed within the tolerance by their intervals, "
+                   f"{a['undecided']} with intervals wider than the tolerance (the response's model error is larger "
+                   f"than it).")
+    return "\n".join(out)
+
+
+RENDERERS = {"01_derivation": derivation, "02_friction_fitting": friction, "04_pid_sweeps": sweeps,
+             "05_validation": validation}
+
+
+def render(notebook: str, metrics: dict) -> str:
+    """The "What we found" of ``notebook`` (its stem, e.g. "04_pid_sweeps") from its
+    ``metrics`` (a dict, or the path of its metrics JSON)."""
+    if notebook not in RENDERERS:
+        raise ValueError(f"no findings for notebook {notebook!r}; known: {sorted(RENDERERS)}")
+    if not isinstance(metrics, dict):
+        metrics = read_metrics(metrics)
+    return RENDERERS[notebook](metrics)
+
+
+# ---------------------------------------------------------------------------------------
+# the check: every quoted number is a metric
+# ---------------------------------------------------------------------------------------
+
+# a number, optionally signed and followed by a percent sign
+_NUMBER = re.compile(r"(?<![\w.\[])([-+−]?\d+(?:\.\d+)?(?:e[-+]?\d+)?)(\s*%)?")
+# words after which a number names a thing (eq. 5.11, Listing 7.7, Fig. 6.9, notebook 05, A[3,3])
+_REFERENCE = re.compile(r"(eqs?\.|Listings?|Figs?\.|Tables?|notebooks?|sections?|chapters?|§|chapter-)\s*$",
+                        re.IGNORECASE)
+
+
+def _leaves(obj):
+    if isinstance(obj, dict):
+        for v in obj.values():
+            yield from _leaves(v)
+    elif isinstance(obj, (list, tuple)):
+        for v in obj:
+            yield from _leaves(v)
+    elif isinstance(obj, bool):
+        return
+    elif isinstance(obj, (int, float)) and math.isfinite(obj):
+        yield float(obj)
+    elif isinstance(obj, str):
+        # a metric's text (a reason) may be quoted: its numbers are the metrics' too
+        for tok, _ in quoted_numbers(obj):
+            yield float(tok)
+
+
+def quoted_numbers(text: str) -> list[tuple[str, bool]]:
+    """The numbers ``text`` quotes, as (token, is_percent): not inside back-quotes (names),
+    not references (eq. 5.11, Listing 7.7, Fig. 6.9, notebook 05, A[3,3])."""
+    plain = re.sub(r"`[^`]*`", " ", text)
+    out = []
+    for match in _NUMBER.finditer(plain):
+        before = plain[max(0, match.start() - 20):match.start()]
+        if _REFERENCE.search(before):
+            continue
+        out.append((match.group(1).replace("−", "-"), bool(match.group(2))))
+    return out
+
+
+def _same(token: str, value: float, percent: bool) -> bool:
+    """Whether ``token`` is ``value`` as printed: to the token's decimals (".3f", also in
+    percent for a token followed by %), or to its significant digits (".4g", ".1e")."""
+    x = float(token)
+    candidates = [value, 100 * value] if percent else [value, 100 * value] if "e" in token.lower() else [value]
+    mant = token.lower().split("e")[0].lstrip("+-")
+    if "e" not in token.lower():
+        digits = len(mant.split(".")[1]) if "." in mant else 0
+        if any(round(abs(v), digits) == round(abs(x), digits) for v in candidates):
+            return True
+    sig = len(mant.replace(".", "").lstrip("0"))
+    return sig > 0 and any(float(f"{abs(v):.{sig - 1}e}") == float(f"{abs(x):.{sig - 1}e}") for v in candidates)
+
+
+def unquoted(text: str, metrics: dict, constants=()) -> list[str]:
+    """The numbers ``text`` quotes that are none of ``metrics``' values (nor of
+    ``constants``) as printed: empty when the text says only what its metrics hold."""
+    values = list(_leaves(metrics)) + [float(c) for c in constants]
+    return [tok + ("%" if pct else "") for tok, pct in quoted_numbers(text)
+            if not any(_same(tok, v, pct) for v in values)]
