@@ -64,7 +64,7 @@ def test_effects_off_give_the_numbers_of_the_kernel_without_them():
     lg.calibrate(d)
     s = lg.step_response(d, 40, 0.08, 0.01)
     assert _fp(np.round(np.degrees(s.q1) * 1e6)) == "80a13ecb97153fd8"
-    assert _fp(d.sim.st.AI[0, :, L.I_COUNTS]) == "20d7f70f65e3b03e"
+    assert _fp(d.sim.st.AI[0, :, L.I_COUNTS]) == "27e62eeb5898ce14"
 
 
 @pytest.mark.parametrize("name", MISMATCHED)

@@ -35,8 +35,14 @@ def test_pole_panel_readout_follows_sliders(leg):
 
 
 def test_gain_panel_readout_follows_sliders(leg):
+    from leglib.device.virtual import forget
+    from leglib.device.virtual.wire import serial_for_seed
+
     def device():
-        dev = lg.connect("virtual", leg=leg, seed=5)
+        # a fresh board each time (a virtual board lives for the process under its seed: the
+        # second session would find the first's, the leg resting a count elsewhere)
+        forget(serial_for_seed(55))
+        dev = lg.connect("virtual", leg=leg, seed=55)
         lg.configure(dev)
         lg.calibrate(dev)
         return dev

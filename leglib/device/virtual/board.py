@@ -176,16 +176,16 @@ class BoardMixin:
         the brake resistor's state follows the kernel's (a bus fault disarms it), the
         brake's saturation latch, and on fw 0.5.1 the axes' own view of a fault."""
         st = self.st
-        self._vbus_trip_check()
+        vbus = self._vbus()
+        self._vbus_trip_check(vbus)
         if self._brake_armed and st.C[0, 0, L.C_BRAKE_ON] == 0.0 and float(self._board["brake_resistance"]) > 0.0:
             self._brake_armed = False          # the kernel's bus checks disarmed it
-        vbus = self._vbus()
         if vbus > 0 and float(st.AS[0, 0, L.S_BRAKE_I]) * float(st.C[0, 0, L.C_BRAKE_R]) / vbus >= 0.95:
             self._brake_saturated = True                     # low_level.cpp:350-353
         if self.firmware == "0.5.1":
             self._board_events_051()
 
-    def _vbus_trip_check(self):
+    def _vbus_trip_check(self, vbus: float):
         """main.cpp:300-305 as the kernel's _board_checks does it, at the host's step: the
         kernel's vectorized path (a sweep block, leglib/twin/vector.py) has no board checks,
         so the trip is checked here too (exact while the bus carries no current; under load
@@ -193,7 +193,6 @@ class BoardMixin:
         st = self.st
         if not st.C[0, 0, L.C_VBUS_CHECKS] > 0.0:
             return
-        vbus = self._vbus()
         under = not (vbus >= float(st.C[0, 0, L.C_UV_TRIP]))
         over = not (vbus <= float(st.C[0, 0, L.C_OV_TRIP]))
         if not (under or over):

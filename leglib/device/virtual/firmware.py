@@ -490,16 +490,15 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         if progress and n == 0 and seconds > 0:
             n = 1
         self._pending -= n * dt
-        # run up to each state-machine event, handle it, go on
-        while True:
-            self._process_events()
+        # run up to each state-machine event, handle it, go on (the events at one instant
+        # are handled once)
+        self._process_events()
+        while n > 0:
             te = self._next_event()
-            if n <= 0:
-                break
             k = n if te is None else max(1, min(n, int(math.ceil((te - self.time) / dt - 1e-9))))
             self.twin.run(self.st, ticks=k)
             n -= k
-        self._process_events()
+            self._process_events()
 
     def sleep(self, seconds: float) -> None:
         """Let ``seconds`` of (virtual) time pass; in real-time mode also wait."""
@@ -761,6 +760,9 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         return getattr(tree, name)
 
     def __setattr__(self, name, value):
+        if name[0] == "_":               # the model's own state (the common case: fast)
+            object.__setattr__(self, name, value)
+            return
         tree = self.__dict__.get("_tree")
         if name in ("axis0", "axis1", "config", "vbus_voltage", "error") or (
                 tree is not None and not name.startswith("_") and name in tree._props):

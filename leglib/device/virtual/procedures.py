@@ -113,11 +113,14 @@ class AxisThread:
             while ax["wake"] is not None and now >= ax["wake"]:
                 self._step_task(a)
             # the index interrupt fires whenever the encoder passes its index while armed
-            # (encoder.cpp:86-117), not only in the index search's spin
-            turns = self._rotor_encoder_turns(a)
-            if ax.get("index_armed") and ax.get("index_turns") is not None and ax["task"] is None:
-                self._index_check(a, ax["index_turns"])
-            ax["index_turns"] = turns
+            # (encoder.cpp:86-117), not only in the index search's spin (whose loop checks it)
+            if ax.get("index_armed") and ax["use_index"] and not ax.get("index_found") and ax["task"] is None:
+                turns = self._rotor_encoder_turns(a)
+                if ax.get("index_turns") is not None:
+                    self._index_check(a, ax["index_turns"])
+                ax["index_turns"] = turns
+            else:
+                ax["index_turns"] = None
 
     def _closed_loop_exit_ok(self, a: int) -> bool:
         # axis.cpp:348-350: stop_closed_loop_control returns check_for_errors()

@@ -168,6 +168,12 @@ class AxisReadings:
         return float(self._axis[a]["last_error_time"].get(which, 0.0))
 
     def _note_error_times(self):
+        AI = self.st.AI
+        words = (int(AI[0, 0, L.I_CTRL_ERR]), int(AI[0, 0, L.I_MOTOR_ERR]),
+                 int(AI[0, 1, L.I_CTRL_ERR]), int(AI[0, 1, L.I_MOTOR_ERR]))
+        if words == self.__dict__.get("_error_words"):
+            return                       # nothing changed since the last look
+        self.__dict__["_error_words"] = words
         for a, ax in enumerate(self._axis):
             seen = ax.setdefault("errors_seen", {})
             for which, slot in (("controller", L.I_CTRL_ERR), ("motor", L.I_MOTOR_ERR)):
