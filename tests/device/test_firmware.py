@@ -844,3 +844,10 @@ def test_a_pre_calibrated_encoder_is_ready_once_its_index_is_found_after_a_boot(
     ax.controller.input_pos = ax.encoder.pos_estimate
     _closed_loop(odrv, ax)
     assert ax.current_state == V.AXIS_STATE_CLOSED_LOOP_CONTROL, hex(ax.controller.error)
+    # an offset written over the measured one (a configuration restored from another board)
+    # would commutate the motor wrongly (encoder.cpp:833-838): refused at the request
+    ax.requested_state = V.AXIS_STATE_IDLE
+    odrv.sleep(0.01)
+    ax.encoder.config.phase_offset = ax.encoder.config.phase_offset + 500
+    with pytest.raises(UnmodeledError, match="phase_offset"):
+        ax.requested_state = V.AXIS_STATE_CLOSED_LOOP_CONTROL
