@@ -28,7 +28,12 @@ INPUT_MODE_INACTIVE, INPUT_MODE_PASSTHROUGH, INPUT_MODE_POS_FILTER, INPUT_MODE_T
  C_CAL_VEL, C_CAL_CURRENT, C_INT_RESET_TORQUE, C_CAL_RAMP) = range(33)
 # system (board) configuration, kept in the slots of axis 0: C[b, 0, k]
 (C_BRAKE_ON, C_BRAKE_R, C_MAX_REGEN, C_DC_MAX_POS, C_DC_MAX_NEG, C_VBUS, C_REGEN_ERR_STYLE) = range(33, 40)
-N_CFG = 40
+# appended for the board's power supply (read only by kernel._board_checks; slots of axis 0):
+# the supply's source resistance [ohm], config.dc_bus_undervoltage_trip_level and
+# config.dc_bus_overvoltage_trip_level [V], and whether the board checks them (1: a virtual
+# ODrive's board, main.cpp:300-305; 0: a bare Twin, whose C array starts at zero)
+C_VBUS_R, C_UV_TRIP, C_OV_TRIP, C_VBUS_CHECKS = 40, 41, 42, 43
+N_CFG = 44
 # float state per axis: AS[b, axis, k]
 S_POS_EST, S_VEL_EST, S_INTEGRATOR, S_IQ, S_WD_TIMER, S_IQ_MEAS = range(6)
 S_OSC = 6           # N_OSC slots of the oscillation monitor (see oscillation_update)
@@ -49,8 +54,12 @@ MOTOR_ERROR_CURRENT_LIMIT_VIOLATION = 0x1000
 MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT = 0x4000      # 0.5.1: the bus faults land on the motors
 MOTOR_ERROR_DC_BUS_OVER_CURRENT = 0x8000
 MOTOR_ERROR_SYSTEM_LEVEL = 0x1000000                # 0.5.2+: motors disarmed by a board fault
-ODRIVE_ERROR_DC_BUS_OVER_CURRENT = 0x4              # 0.5.2+: odrv.error
+ODRIVE_ERROR_DC_BUS_UNDER_VOLTAGE = 0x2             # 0.5.2+: odrv.error (odrive-interface.yaml ODrive.Error)
+ODRIVE_ERROR_DC_BUS_OVER_VOLTAGE = 0x4
 ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT = 0x8
+ODRIVE_ERROR_DC_BUS_OVER_CURRENT = 0x10
+AXIS_ERROR_DC_BUS_UNDER_VOLTAGE = 0x2                # 0.5.1: the axes' own errors (fw-v0.5.1 axis.cpp:173-176)
+AXIS_ERROR_DC_BUS_OVER_VOLTAGE = 0x4
 CURRENT_LIM_MARGIN = 8.0  # A, firmware default motor.config.current_lim_margin
 # the leg's state X[b, k]: joints, time, then the unmodeled effects' state (see _run)
 X_Q1, X_DQ1, X_Q2, X_DQ2, X_T = range(5)

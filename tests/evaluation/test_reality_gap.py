@@ -49,7 +49,9 @@ def test_effects_off_give_the_numbers_of_the_kernel_without_them():
     an independent-inertia batch, a device's calibration and step). A deliberate change of
     the kernel's arithmetic must renew them; so must a change of the transactions a
     device's calibration makes (the step starts at that device time: the calibration under
-    the watchdog, fed every poll, renewed the last one; the kernel's two did not change)."""
+    the watchdog, fed every poll, renewed the last one; the kernel's two did not change;
+    issue 24's USB cost -- 0.36 ms mean with the client's measured spread -- and the axis
+    thread's procedures renewed it again)."""
     plant = load_plant("default")
     assert plant.unmodeled == ()
     assert np.all(Twin(plant).FR[14:] == 0.0)
@@ -61,8 +63,8 @@ def test_effects_off_give_the_numbers_of_the_kernel_without_them():
     lg.configure(d)
     lg.calibrate(d)
     s = lg.step_response(d, 40, 0.08, 0.01)
-    assert _fp(np.round(np.degrees(s.q1) * 1e6)) == "5393c20ba47584ad"
-    assert _fp(d.sim.st.AI[0, :, L.I_COUNTS]) == "20d7f70f65e3b03e"
+    assert _fp(np.round(np.degrees(s.q1) * 1e6)) == "80a13ecb97153fd8"
+    assert _fp(d.sim.st.AI[0, :, L.I_COUNTS]) == "27e62eeb5898ce14"
 
 
 @pytest.mark.parametrize("name", MISMATCHED)

@@ -37,11 +37,10 @@ def test_pole_panel_readout_follows_sliders(leg):
 
 def test_gain_panel_readout_follows_sliders(leg):
     def device():
-        # a virtual board lives for the process under its seed (its calibration and noise go on
-        # from session to session, as a powered board's do): each of the two sessions below
-        # gets a fresh board of seed 5, so both start from the same history
-        forget(serial_for_seed(5))
-        dev = lg.connect("virtual", leg=leg, seed=5)
+        # a fresh board each time (a virtual board lives for the process under its seed: the
+        # second session would find the first's, the leg resting a count elsewhere)
+        forget(serial_for_seed(55))
+        dev = lg.connect("virtual", leg=leg, seed=55)
         lg.configure(dev)
         lg.calibrate(dev)
         return dev
