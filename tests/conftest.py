@@ -74,6 +74,27 @@ def _warm_kernels():
         time.sleep(0.2)
 
 
+# -- the order of the tests: the long ones first -----------------------------------------------
+
+LONG_MARKERS = ("wheel", "browser", "notebook", "slow")   # longest first
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """Notebook, browser and wheel tests are slow too (``-m "not slow"`` leaves them all out);
+    and the slow tests go first: pytest-xdist hands the tests out in this order, so the
+    long ones start early and the short ones fill the workers' ends instead of one long test
+    running on alone at the end (the browser tests stay on one worker: xdist_group "lab")."""
+    def rank(item):
+        marks = {m.name for m in item.iter_markers()}
+        return next((k for k, name in enumerate(LONG_MARKERS) if name in marks), len(LONG_MARKERS))
+
+    for item in items:
+        if rank(item) < len(LONG_MARKERS):
+            item.add_marker(pytest.mark.slow)
+    items.sort(key=rank)   # stable: the collection's order within each rank
+
+
 @pytest.fixture(scope="session")
 def leg():
     return load_leg("thesis")

@@ -384,6 +384,7 @@ def _configured_and_calibrated(thesis_odrive, seed):
     return ns
 
 
+@pytest.mark.slow
 def test_listing_72_calibration_then_velocity(thesis_odrive):
     """Listing 7.2 at the console after 7.1: the calibration (states 4 -> 7 -> 1;
     fw-v0.5.6 axis.cpp:472-479) finishes without error with the configured cpr and pole
@@ -411,6 +412,7 @@ def test_listing_72_calibration_then_velocity(thesis_odrive):
     assert odrv0.axis0.current_state == 1 and odrv0.axis1.current_state == 1
 
 
+@pytest.mark.slow
 def test_listing_74_steps_and_files(thesis_odrive, tmp_path, monkeypatch):
     """Listing 7.4 as a script after 7.1 and 7.2's calibration, grid shortened to 2 points.
 
@@ -450,6 +452,7 @@ def test_listing_74_steps_and_files(thesis_odrive, tmp_path, monkeypatch):
     assert math.isfinite(odrv0.vbus_voltage)
 
 
+@pytest.mark.slow
 def test_listing_73_torque_table(thesis_odrive, tmp_path, monkeypatch):
     """Listing 7.3 as a script after 7.1 and 7.2's calibration: a torque table (here a
     0.01 N m, 1 Hz sine on axis1, zero on axis0, 2 ms rows) played in torque control; the

@@ -7,7 +7,7 @@ from leglib.model import derivation
 
 # one worker derives the models once (derive_* keep their result in the process: about 10 s
 # of sympy) for all the tests of this file
-pytestmark = pytest.mark.xdist_group("derivation")
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("derivation")]
 
 
 def test_generated_module_is_up_to_date():
