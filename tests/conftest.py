@@ -30,7 +30,8 @@ def pytest_configure(config):
     every notebook kernel compiles the same kernels at the same time (a minute each): numba
     writes its cache only when a compile ends. With a warm cache the processes only load
     (a few seconds, beside the workers' start)."""
-    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None) \
+            or config.option.collectonly:
         return
     done = Path(tempfile.mkdtemp(prefix="leglib-warm-")) / "done"
     os.environ[WARM_ENV] = str(done)   # the workers inherit it
