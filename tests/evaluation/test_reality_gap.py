@@ -469,6 +469,7 @@ def test_drift_carries_over_on_a_device_not_between_batch_points():
 
 # -- the procedure on every plant ------------------------------------------------------------
 
+@pytest.mark.slow
 @pytest.mark.parametrize("payload", [0.0, 0.3])
 @pytest.mark.parametrize("name", MISMATCHED)
 def test_calibration_and_steps_work_on_seeds_0_to_9(name, payload):
@@ -492,6 +493,7 @@ def test_calibration_and_steps_work_on_seeds_0_to_9(name, payload):
             assert identify_response(r, dev.leg).status == "ok", (name, seed)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", MISMATCHED)
 def test_the_thesis_grid_runs_and_moderate_gains_are_second_order_steps(name):
     dev = lg.connect("virtual", plant=name, seed=1)

@@ -140,6 +140,7 @@ def twin_run():
     return dev, lg.friction_experiment(dev)
 
 
+@pytest.mark.slow
 def test_leg_friction_recovers_the_twins_truth_within_5_percent(twin_run):
     from leglib.params import load_leg
     dev, run = twin_run
@@ -159,6 +160,7 @@ def test_leg_friction_recovers_the_twins_truth_within_5_percent(twin_run):
     assert rms_nom > 20 * f.rms_deg[0]
 
 
+@pytest.mark.slow
 def test_torque_run_file_round_trip(twin_run, tmp_path):
     _, run = twin_run
     back = TorqueRun.read(run.write(tmp_path))

@@ -468,13 +468,17 @@ def test_live_view_redraws_while_a_run_plays(lab, browser):
 
 def test_live_view_redraws_during_a_realtime_step(lab, browser):
     """A 3 s step on the twin paced to the wall clock (realtime=True) with the view's
-    on_sample: the picture changes while the step runs, and the step keeps its 2 ms period."""
+    on_sample: the picture changes while the step runs, and the step keeps its 2 ms period.
+    (The device is configured and calibrated first on virtual time, about 20 s of device
+    time, then connected again in real time: the step is what the view watches.)"""
     result = lab["root"] / "live_step.json"
     path = _live_notebook(lab, "live_step.ipynb", (
         "import leglib as lg\n"
-        "with lg.connect('virtual', seed=1, realtime=True) as dev:\n"
+        "with lg.connect('virtual', seed=1) as dev:\n"
         "    lg.configure(dev)\n"
         "    lg.calibrate(dev)\n"
+        "with lg.connect('virtual', seed=1, realtime=True) as dev:\n"
+        "    assert dev.sim.realtime\n"
         "    view.clear()\n"
         "    r = lg.step_response(dev, 50, 0.046, 0.001, duration=3.0, on_sample=view.on_sample)\n"
         "import numpy as np\n"

@@ -82,6 +82,7 @@ def test_batch_reports_a_bad_scheduler_in_one_line(tmp_path, capsys, address, me
     assert not (out / "x").exists()  # nothing ran
 
 
+@pytest.mark.slow
 def test_an_unreachable_scheduler_from_the_shell(tmp_path):
     """The whole command: one line on stderr, exit code 2, nothing complaining at exit."""
     spec = tmp_path / "s.toml"

@@ -230,11 +230,15 @@ def test_03_pole_placement(processed, tmp_path):
     assert m["bench"]["counts"]["torque"] == 4 and m["bench"]["counts"]["hold"] == 2
 
 
+def _run_notebook_04(out):
+    _run(NOTEBOOKS[3], out, sweep_dir=str(out / "sweep"), processed_dir=str(out / "processed"))
+
+
 @pytest.fixture(scope="module")
-def sweep04(tmp_path_factory):
-    out = tmp_path_factory.mktemp("nb04")
-    m = _run(NOTEBOOKS[3], out, sweep_dir=str(out / "sweep"), processed_dir=str(out / "processed"))
-    return out, m
+def sweep04(shared):
+    """Notebook 04 run once for the session (tests 04 and 05 may run on two workers)."""
+    out = shared("nb04", _run_notebook_04)
+    return out, json.loads((out / "metrics" / f"{NOTEBOOKS[3].stem}.json").read_text())
 
 
 @pytest.mark.notebook
