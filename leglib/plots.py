@@ -85,6 +85,178 @@ def text_overlaps(fig, tolerance_px: float = 1.0) -> list[str]:
                 found.append(f"{name_a} overlaps {name_b}")
     return found
 
+def _data_under(ax, box, renderer) -> list[str]:
+    """The data of ``ax`` (lines, markers, scatter points, error bars, patches; not images,
+    which any box inside the axes covers) drawn under the display-space ``box``, by label."""
+    from matplotlib.collections import LineCollection, PathCollection  # load time: matplotlib, only when drawing
+
+    def name(artist):
+        label = str(artist.get_label() or "")
+        return label if label and not label.startswith("_") else type(artist).__name__
+
+    hits = []
+    for line in ax.get_lines():
+        if not line.get_visible() or len(line.get_xydata()) == 0:
+            continue
+        path = line.get_transform().transform_path(line.get_path())
+        verts = path.vertices[np.all(np.isfinite(path.vertices), axis=1)]
+        if line.get_linestyle() in ("None", "", " ", "none"):   # markers only: the points themselves
+            inside = box.count_contains(verts) > 0 if len(verts) else False
+        else:
+            inside = bool(len(verts)) and (box.count_contains(verts) > 0 or path.intersects_bbox(box, filled=False))
+        if inside:
+            hits.append(name(line))
+    for coll in ax.collections:
+        if not coll.get_visible():
+            continue
+        if isinstance(coll, PathCollection) and len(coll.get_offsets()):
+            pts = coll.get_offset_transform().transform(np.asarray(coll.get_offsets(), float))
+            if box.count_contains(pts[np.all(np.isfinite(pts), axis=1)]) > 0:
+                hits.append(name(coll))
+        elif isinstance(coll, LineCollection):
+            tr = coll.get_transform()
+            if any(tr.transform_path(p).intersects_bbox(box, filled=False) for p in coll.get_paths()):
+                hits.append(name(coll))
+    for patch in ax.patches:
+        if patch.get_visible() and patch.get_window_extent(renderer).overlaps(box):
+            hits.append(name(patch))
+    return hits
+
+
+def _legends(fig):
+    out = [(ax.get_legend(), ax) for ax in fig.axes if ax.get_legend() is not None]
+    return out + [(leg, None) for leg in fig.legends]
+
+
+def legends_on_data(fig) -> list[str]:
+    """Legends of ``fig`` drawn over data of any of its axes (each named: the axes, what it
+    covers): a legend that hides what it explains."""
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    found = []
+    for legend, _ in _legends(fig):
+        if not legend.get_visible():
+            continue
+        box = legend.get_window_extent(renderer)
+        for k, ax in enumerate(fig.axes):
+            if ax.get_window_extent(renderer).overlaps(box):
+                hits = _data_under(ax, box, renderer)
+                if hits:
+                    found.append(f"axes {k} legend covers {', '.join(sorted(set(hits))[:4])}")
+    return found
+
+
+def _twins(ax):
+    """``ax`` and the axes drawn at its place (``twinx``)."""
+    pos = ax.get_position().bounds
+    return [a for a in ax.figure.axes if np.allclose(a.get_position().bounds, pos)]
+
+
+def _has_right_neighbour(ax, renderer) -> bool:
+    """Another axes (a panel, a colour bar) to the right of ``ax`` in its row."""
+    me = ax.get_window_extent(renderer)
+    twins = _twins(ax)
+    for other in ax.figure.axes:
+        if other in twins or not other.get_visible():
+            continue
+        b = other.get_window_extent(renderer)
+        if b.x0 >= me.x1 - 1 and min(b.y1, me.y1) > max(b.y0, me.y0):
+            return True
+    return False
+
+
+def keep_legends_off_data(fig) -> list[str]:
+    """Move each axes legend that covers data (:func:`legends_on_data`) where it covers none:
+    first matplotlib's "best" place inside the axes; if none is free, beside the axes on the
+    right (past a twin axis's labels) when nothing stands there, else above the axes, the
+    title raised over it. Returns what was moved, e.g. ["axes 0: beside the axes"]."""
+    moved = []
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    for k, ax in enumerate(fig.axes):
+        legend = ax.get_legend()
+        if legend is None or not legend.get_visible():
+            continue
+
+        def covers():
+            fig.canvas.draw()
+            box = legend.get_window_extent(renderer)
+            return any(_data_under(a, box, renderer) for a in fig.axes if a.get_window_extent(renderer).overlaps(box))
+
+        if not covers():
+            continue
+        legend.set_bbox_to_anchor(None)
+        legend.set_loc("best")
+        if not covers():
+            moved.append(f"axes {k}: best place inside")
+            continue
+        if not _has_right_neighbour(ax, renderer):
+            right = max(a.get_tightbbox(renderer).x1 for a in _twins(ax))
+            me = ax.get_window_extent(renderer)
+            legend.set_loc("upper left")
+            legend.set_bbox_to_anchor(((right - me.x0) / me.width + 0.02, 1.0), transform=ax.transAxes)
+            moved.append(f"axes {k}: beside the axes")
+        else:
+            legend.set_loc("lower center")
+            legend.set_bbox_to_anchor((0.5, 1.01), transform=ax.transAxes)
+            fig.canvas.draw()
+            height = legend.get_window_extent(renderer).height * 72.0 / fig.dpi   # points
+            if ax.get_title():
+                ax.set_title(ax.get_title(), pad=height + 8.0, fontsize=ax.title.get_fontsize())
+            moved.append(f"axes {k}: above the axes")
+    return moved
+
+
+def clipped_texts(fig, tolerance_px: float = 1.0) -> list[str]:
+    """Texts of ``fig`` that run past the figure's edge when it is drawn at its own size (an
+    animation's frames, a widget's picture: nothing there widens the canvas as a saved
+    figure's tight bounding box does), each named."""
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    w, h = fig.canvas.get_width_height()
+    found = []
+    for t, name in _texts(fig):
+        try:
+            bb = t.get_window_extent(renderer)
+        except (RuntimeError, ValueError):
+            continue
+        if bb.width > 0 and (bb.x0 < -tolerance_px or bb.y0 < -tolerance_px or bb.x1 > w + tolerance_px
+                             or bb.y1 > h + tolerance_px):
+            found.append(f"{name} runs past the figure's edge")
+    return found
+
+
+def fit_title(ax, title: str, fontsize: float | None = None):
+    """Set ``title`` on ``ax`` so that it fits its figure drawn at its own size: wrapped onto
+    two lines when it is wider than the figure, then smaller if it still is; the axes moved
+    down when it runs past the top (a long title on an animation's small figure was cut at
+    both ends)."""
+    fig = ax.figure
+    size = fontsize or ax.title.get_fontsize()
+    text = title
+    t = ax.set_title(text, fontsize=size)
+    for _ in range(12):
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        bb = t.get_window_extent(renderer)
+        w, h = fig.canvas.get_width_height()
+        if bb.x0 < 0 or bb.x1 > w:          # too wide: wrap, then shrink
+            if "\n" not in text and " " in title:
+                words = title.split(" ")
+                half = len(title) / 2
+                cut = min(range(1, len(words)), key=lambda i: abs(len(" ".join(words[:i])) - half))
+                text = " ".join(words[:cut]) + "\n" + " ".join(words[cut:])
+            else:
+                size *= 0.9
+            t = ax.set_title(text, fontsize=size)
+        elif bb.y1 > h:                       # past the top: the axes make room
+            top = fig.subplotpars.top - (bb.y1 - h + 4) / h
+            fig.subplots_adjust(top=top)
+        else:
+            break
+    return t
+
+
 def draw_leg(leg, q1, q2, ax=None, **style):
     """Draw the four links of the exact five-bar at (q1, q2) [rad]; returns the Line2D."""
     ax = axes(ax)
@@ -165,7 +337,9 @@ def plot_torque_run(run, ax=None):
     l4 = ax2.plot(tt, run.table[:, 1], "k--", lw=0.8, label="tau2")
     ax2.set_ylabel("joint torque [N m]")
     lines = l1 + l2 + l3 + l4
-    ax.legend(lines, [ln.get_label() for ln in lines], loc="upper right", fontsize=8)
+    # the angles and torques fill the axes: where no place inside is free, keep_legends_off_data
+    # (save_figure) puts the legend beside them, past the torque axis
+    ax.legend(lines, [ln.get_label() for ln in lines], fontsize=8)
     return lines
 
 
@@ -188,7 +362,7 @@ def plot_step_identification(t, y, fit, ax=None):
     lines = ax.plot(t, y * 1e3, "r-", label="measured")
     iv = getattr(fit, "intervals", None)
     if iv is not None:
-        label = (f"{fit.method}: zeta={iv.text('zeta', fit.zeta, 3)}, fn={iv.text('fn', fit.fn, 2)} Hz "
+        label = (f"{fit.method}: zeta={iv.text('zeta', fit.zeta)}, fn={iv.text('fn', fit.fn)} Hz "
                  f"(90 %), R^2={fit.r2:.3f}")
     else:
         label = f"{fit.method}: zeta={fit.zeta:.3f}, fn={fit.fn:.2f} Hz, fd={fit.fd:.2f} Hz, R^2={fit.r2:.3f}"
@@ -245,8 +419,13 @@ def plot_gain_region(gm, ax=None, targets=None, marker=None, numbered: bool = Tr
     zi, fi = gm.zeta_interval[ok], gm.fn_interval[ok]
     arts.append(ax.errorbar(z, f, xerr=np.abs(zi.T - z), yerr=np.abs(fi.T - f), fmt="none", ecolor="b", alpha=0.25,
                             lw=0.6))
-    arts.append(ax.scatter(z, f, s=14, c="b", label="measured grid points (identified, 90 % intervals)"))
     hi = float(np.nanmax(a.zeta)) * 1.05 if a.zeta.size else 2.0
+    # the frequency axis spans the points, not their intervals: a wide interval (an
+    # approximate second-order response) runs off the axes rather than squeezing every point
+    top = float(np.nanmax(np.concatenate([f, a.fn, [1.0]]))) * 1.1
+    cut = int(np.sum(fi[:, 1] > top)) if len(fi) else 0
+    arts.append(ax.scatter(z, f, s=14, c="b", label="measured grid points (identified, 90 % intervals"
+                           + (f"; {cut} run past the top)" if cut else ")")))
     if targets is not None and len(targets):
         t = np.atleast_2d(np.asarray(targets, dtype=float))
         arts.append(ax.scatter(t[:, 0], t[:, 1], s=60, marker="x", c="r", label="targets"))
@@ -254,13 +433,16 @@ def plot_gain_region(gm, ax=None, targets=None, marker=None, numbered: bool = Tr
             for k, (z, f) in enumerate(t, start=1):
                 ax.annotate(str(k), (z, f), textcoords="offset points", xytext=(5, 4), fontsize=8, color="r")
         hi = max(hi, float(np.max(t[:, 0])) * 1.05)
+        top = max(top, float(np.max(t[:, 1])) * 1.1)
     if marker is not None:
         arts.append(ax.scatter([marker[0]], [marker[1]], s=120, marker="*", c="orange", label="this step"))
         hi = max(hi, float(marker[0]) * 1.05)
+        top = max(top, float(marker[1]) * 1.1)
     ax.set_xlabel("damping ratio zeta [-]")
     ax.set_ylabel("natural frequency fn [Hz]")
     ax.set_title("Achievable (zeta, fn) of the foot's step")
     ax.set_xlim(0, min(hi, 3.0))
+    ax.set_ylim(0, top)
     region_legend(ax)
     return arts
 
@@ -270,27 +452,69 @@ def region_legend(ax):
     return ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
 
 
+#: how a map slice draws a grid point without a value, and what the legend calls it
+EMPTY_CELLS = {"unstable": ({"facecolor": "0.35", "hatch": None}, "unstable (the step aborted)"),
+               "failed": ({"facecolor": "#f6d2d2", "hatch": "xx", "edgecolor": "#b00"},
+                          "failed (not a second-order step)"),
+               "missing": ({"facecolor": "white", "hatch": "..", "edgecolor": "0.6"}, "not measured")}
+
+
+def _edges(values) -> np.ndarray:
+    """Cell edges around grid values (midpoints; the ends half a step out), so each cell is
+    centred on its value."""
+    v = np.asarray(values, float)
+    if v.size == 1:
+        return np.array([v[0] * 0.9, v[0] * 1.1]) if v[0] else np.array([-0.5, 0.5])
+    mid = (v[1:] + v[:-1]) / 2
+    return np.concatenate([[v[0] - (mid[0] - v[0])], mid, [v[-1] + (v[-1] - mid[-1])]])
+
+
 def plot_map_slices(gm, field: str = "zeta", axes=None):
-    """One image per pos_gain: ``field`` ("zeta" or "fn" [Hz]) over vel_gain x
-    vel_integrator_gain; cells without a value (unstable, failed) are left white."""
+    """One panel per pos_gain: ``field`` ("zeta" or "fn" [Hz]) over vel_gain x
+    vel_integrator_gain, each cell centred on its grid point. Cells without a value are drawn
+    by why (:data:`EMPTY_CELLS`: unstable, failed, not measured) and named in the legend with
+    their counts; the colour scale spans the 2nd to 98th percentile, an arrow on the colour
+    bar marking values beyond it. The panels share their vertical axis (tick labels only on
+    the first)."""
     import matplotlib.pyplot as plt  # load time: matplotlib (about 0.5 s), only when drawing
+    from matplotlib.patches import Patch  # load time: matplotlib, only when drawing
+
     data = gm.zeta if field == "zeta" else gm.fn
     n = len(gm.axes[0])
     if axes is None:
-        _, axes = plt.subplots(1, n, figsize=(4 * n, 3.4), squeeze=False)
+        fig, axes = plt.subplots(1, n, figsize=(3.6 * n + 1.2, 3.6), squeeze=False, sharey=True,
+                                 layout="constrained")
         axes = axes[0]
-    vmin, vmax = np.nanpercentile(data, [2, 98])
-    images = []
+    fig = axes[0].figure
+    vmin, vmax = np.nanpercentile(data, [2, 98]) if np.isfinite(data).any() else (0.0, 1.0)
+    xe, ye = _edges(gm.axes[1]), _edges(gm.axes[2])
+    status = np.asarray(gm.status).astype(str)
+    images, counts = [], {k: 0 for k in EMPTY_CELLS}
     for k, ax in enumerate(axes):
-        im = ax.imshow(data[k].T, origin="lower", aspect="auto", vmin=vmin, vmax=vmax, cmap="viridis",
-                       extent=[gm.axes[1][0], gm.axes[1][-1], gm.axes[2][0], gm.axes[2][-1]])
-        ax.set_title(f"{field}, pos_gain = {gm.axes[0][k]:g} (turn/s)/turn", fontsize=9)
+        images.append(ax.pcolormesh(xe, ye, data[k].T, vmin=vmin, vmax=vmax, cmap="viridis"))
+        for kind, (style, _) in EMPTY_CELLS.items():
+            for i, j in zip(*np.nonzero(status[k] == kind)):
+                counts[kind] += 1
+                ax.add_patch(plt.Rectangle((xe[i], ye[j]), xe[i + 1] - xe[i], ye[j + 1] - ye[j], lw=0.0,
+                                           **style))
+        ax.set_title(f"pos_gain = {gm.axes[0][k]:g} (turn/s)/turn", fontsize=9)
         ax.set_xlabel("vel_gain [N m/(turn/s)]")
+        ax.tick_params(axis="x", labelsize=8)
         if k == 0:  # shared by the row; repeated labels would overlap the neighbour
             ax.set_ylabel("vel_integrator_gain [N m/turn]")
-        images.append(im)
-    axes[-1].figure.colorbar(images[-1], ax=list(axes),
-                             label="zeta [-]" if field == "zeta" else "fn [Hz]")
+    extend = {(False, False): "neither", (True, False): "min", (False, True): "max", (True, True): "both"}[
+        (bool(np.nanmin(data) < vmin), bool(np.nanmax(data) > vmax))] if np.isfinite(data).any() else "neither"
+    fig.colorbar(images[-1], ax=list(axes), extend=extend,
+                 label=("zeta [-]" if field == "zeta" else "fn [Hz]") + (" (arrows: beyond the scale)"
+                                                                          if extend != "neither" else ""))
+    handles = [Patch(label=f"{label} ({counts[kind]})", **{k: v for k, v in style.items() if v is not None})
+               for kind, (style, label) in EMPTY_CELLS.items() if counts[kind]]
+    if handles:   # above the panels: every empty cell is said
+        from matplotlib.layout_engine import ConstrainedLayoutEngine  # load time: matplotlib, only when drawing
+        outside = isinstance(fig.get_layout_engine(), ConstrainedLayoutEngine)
+        fig.legend(handles=handles, ncol=len(handles), fontsize=8, frameon=False,
+                   **({"loc": "outside upper center"} if outside else
+                      {"loc": "lower center", "bbox_to_anchor": (0.5, 1.0)}))
     return images
 
 
@@ -476,13 +700,18 @@ def animate_leg(leg, q1, q2, t, ax=None, max_frames: int = 60, speed: float = 1.
         allp = np.vstack([allp, sp])
     lo, hi = allp.min(axis=0), allp.max(axis=0)
     pad = 0.08 * float(np.max(hi - lo)) + 0.005
-    ax.set_xlim(lo[0] - pad, hi[0] + pad)
+    # at least 0.6 as wide as tall: a leg swinging little in x made an axes too narrow for
+    # its own tick labels
+    cx, half = (lo[0] + hi[0]) / 2, max((hi[0] - lo[0]) / 2, 0.3 * (hi[1] - lo[1]))
+    ax.set_xlim(cx - half - pad, cx + half + pad)
     ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
+    from matplotlib.ticker import MaxNLocator  # load time: matplotlib, only when drawing
+    ax.xaxis.set_major_locator(MaxNLocator(4))   # a narrow figure: more tick labels would touch
     if title:
-        ax.set_title(title)
+        fit_title(ax, title)   # the figure is small: a long title wraps rather than being cut
     (links,) = ax.plot([], [], "o-", color="k", lw=2.5, ms=5)
     trace_line = ax.plot([], [], "-", color="tab:red", lw=1, label="foot")[0] if trace else None
     label = ax.text(0.02, 0.97, "", transform=ax.transAxes, va="top", fontsize=9)

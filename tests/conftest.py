@@ -1,4 +1,12 @@
+import fcntl
 import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
 
 from leglib.device.virtual import wire as F
 
@@ -8,25 +16,135 @@ import pytest  # noqa: E402
 
 from leglib.params import load_leg  # noqa: E402
 
+# -- the numba kernels compiled once, before the workers use them ---------------------------
+
+WARM_GROUPS = ("serial", "batch", "fit")   # tests/warm_kernels.py: no two compile the same kernel
+WARM_ENV = "LEGLIB_TEST_WARM_KERNELS"      # the file the controller writes when they are done
+WARM_TIMEOUT_S = 900
+
+
+def pytest_configure(config):
+    """Under pytest-xdist, the controller compiles the kernels (tests/warm_kernels.py, one
+    process per group) while the workers start and collect; each worker waits for them before
+    its first test (:func:`_warm_kernels`). Without this, on a fresh clone every worker and
+    every notebook kernel compiles the same kernels at the same time (a minute each): numba
+    writes its cache only when a compile ends. With a warm cache the processes only load
+    (a few seconds, beside the workers' start)."""
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None) \
+            or config.option.collectonly:
+        return
+    done = Path(tempfile.mkdtemp(prefix="leglib-warm-")) / "done"
+    os.environ[WARM_ENV] = str(done)   # the workers inherit it
+    script = Path(__file__).with_name("warm_kernels.py")
+    procs = [subprocess.Popen([sys.executable, str(script), g], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                              text=True, cwd=config.rootpath) for g in WARM_GROUPS]
+
+    def wait():
+        lines = []
+        for g, p in zip(WARM_GROUPS, procs):
+            out, _ = p.communicate()
+            lines.append(out.strip().splitlines()[-1] if p.returncode == 0 and out.strip() else
+                         f"warm_kernels {g}: FAILED ({p.returncode}): {out[-1500:]}")
+        done.with_suffix(".tmp").write_text("\n".join(lines) + "\n")
+        os.replace(done.with_suffix(".tmp"), done)   # whole, or not there
+    threading.Thread(target=wait, daemon=True).start()
+
+
+def pytest_terminal_summary(terminalreporter, config):
+    done = os.environ.get(WARM_ENV)
+    if not hasattr(config, "workerinput") and done and os.path.exists(done):
+        for line in Path(done).read_text().splitlines():
+            terminalreporter.write_line(line)
+
+
+def pytest_unconfigure(config):
+    done = os.environ.pop(WARM_ENV, None) if not hasattr(config, "workerinput") else None
+    if done:
+        shutil.rmtree(Path(done).parent, ignore_errors=True)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _warm_kernels():
+    """A worker's first test waits until the controller's compiles are done (a failed
+    compile is reported by the tests that use the kernel, not here)."""
+    done = os.environ.get(WARM_ENV)
+    if not done or not os.environ.get("PYTEST_XDIST_WORKER"):
+        return
+    deadline = time.monotonic() + WARM_TIMEOUT_S
+    while not os.path.exists(done) and time.monotonic() < deadline:
+        time.sleep(0.2)
+
+
+# -- the order of the tests: the long ones first -----------------------------------------------
+
+LONG_MARKERS = ("wheel", "browser", "notebook", "slow")   # longest first
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """Notebook, browser and wheel tests are slow too (``-m "not slow"`` leaves them all out);
+    and the slow tests go first: pytest-xdist hands the tests out in this order, so the
+    long ones start early and the short ones fill the workers' ends instead of one long test
+    running on alone at the end (the browser tests stay on one worker: xdist_group "lab")."""
+    def rank(item):
+        marks = {m.name for m in item.iter_markers()}
+        return next((k for k, name in enumerate(LONG_MARKERS) if name in marks), len(LONG_MARKERS))
+
+    for item in items:
+        if rank(item) < len(LONG_MARKERS):
+            item.add_marker(pytest.mark.slow)
+    items.sort(key=rank)   # stable: the collection's order within each rank
+
 
 @pytest.fixture(scope="session")
 def leg():
     return load_leg("thesis")
 
 
-@pytest.fixture(scope="session")
-def processed(tmp_path_factory):
-    """Notebook 02 run once (smoke): its output directory and metrics. Its identified leg
-    (``processed/friction_identified.json``) is what notebook 03 reads."""
-    import json
+def shared_dir(tmp_path_factory, name: str, make) -> Path:
+    """A directory made once per test session by ``make(path)`` and shared by every
+    pytest-xdist worker: the first worker to ask makes it while the others wait on a file
+    lock; later ones find it made (a fixture of scope "session" or "module" is otherwise
+    made again in each worker that runs a test using it). A ``make`` that raises leaves
+    nothing behind: the next worker to ask tries again and reports its own error."""
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent   # the session's directory, above the workers' own
+    path = base / f"shared-{name}"
+    with open(base / f"shared-{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (path / ".made").exists():
+            shutil.rmtree(path, ignore_errors=True)
+            path.mkdir()
+            make(path)
+            (path / ".made").touch()
+    return path
 
+
+@pytest.fixture(scope="session")
+def shared(tmp_path_factory):
+    """``shared(name, make)``: :func:`shared_dir` of this session."""
+    return lambda name, make: shared_dir(tmp_path_factory, name, make)
+
+
+def _run_notebook_02(out: Path) -> None:
     from leglib.notebook.run import execute, notebook_paths
 
-    nb02 = notebook_paths()[1]
-    out = tmp_path_factory.mktemp("nb02")
-    execute(nb02, out, {"smoke": True, "raw_dir": str(out / "raw"), "processed_dir": str(out / "processed")},
-            html=False)
-    return out, json.loads((out / "metrics" / f"{nb02.stem}.json").read_text())
+    execute(notebook_paths()[1], out, {"smoke": True, "raw_dir": str(out / "raw"),
+                                       "processed_dir": str(out / "processed")}, html=False)
+
+
+@pytest.fixture(scope="session")
+def processed(shared):
+    """Notebook 02 run once (smoke): its output directory and metrics. Its identified leg
+    (``processed/friction_identified.json``) is what notebook 03 reads. One run for the
+    whole session (:func:`shared_dir`): the notebook tests and the browser test read it."""
+    import json
+
+    from leglib.notebook.run import notebook_paths
+
+    out = shared("nb02", _run_notebook_02)
+    return out, json.loads((out / "metrics" / f"{notebook_paths()[1].stem}.json").read_text())
 
 
 @pytest.fixture(autouse=True)

@@ -103,7 +103,7 @@ def _variant_of(tmp_path: Path, stem: str, old: str, new: str) -> Path:
     ("leg_thesis", "lc3 = { value = 0.093017", "lc3 = { value = 0.2", "field 'com.lc3' = 0.2 m lies beyond its link"),
     ("leg_thesis", "l4 = { value = 0.162", "l4 = { value = 0.3", "the five-bar cannot close"),
     ("odrive_thesis", 'motor_type = { value = 0', 'motor_type = { value = 7', "field 'config.motor_type' must be one of (0, 2, 3), got 7"),
-    ("plant_default", "usb_jitter = { value = 0.2", "usb_jitter = { value = 5", "'sensing.usb_jitter'"),
+    ("plant_default", "usb_jitter = { value = 1.0", "usb_jitter = { value = 5", "'sensing.usb_jitter'"),
     ("plant_default", "gap_max = { value = 160.0", "gap_max = { value = 1.0", "gap_min must be below gap_max"),
     ("plant_default", 'leg_set = "thesis"', 'leg_set = "nosuchleg"', "field 'leg.leg_set' = 'nosuchleg': no parameter set"),
     ("plant_default", 'mechanism = "fivebar"', 'mechanism = "fivebars"', "field 'leg.mechanism' must be one of"),

@@ -43,6 +43,7 @@ from ..errors import MeasurementError, OutsideRegionError
 from ..experiments.step import StepResponse
 from ..files.sweepdir import read_measurements
 from ..params import load_leg
+from ..units import dynamics_text
 from .points import (
     STATUS_MISSING,
     STATUS_OK,
@@ -114,9 +115,9 @@ class Choice:
     fn_interval: tuple = (math.nan, math.nan)
 
     def text(self) -> str:
-        """"zeta 0.240 [0.16, 0.32], fn 5.01 [4.5, 5.6] Hz" (the map's prediction)."""
-        (zl, zh), (fl, fh) = self.zeta_interval, self.fn_interval
-        return f"zeta {self.zeta:.3f} [{zl:.3f}, {zh:.3f}], fn {self.fn:.2f} [{fl:.2f}, {fh:.2f}] Hz"
+        """"zeta 0.24 [0.17, 0.31], fn 5.0 [4.5, 5.6] Hz" (the map's prediction, to the digits
+        its intervals support)."""
+        return dynamics_text(self.zeta, self.fn, self.zeta_interval, self.fn_interval)
 
     def within(self, tolerance: float = TOLERANCE) -> bool:
         """True when the point is within ``tolerance`` (relative) of the request."""

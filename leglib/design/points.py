@@ -30,6 +30,7 @@ from ..identify.step import add_intervals, fit_intervals, identify_batch, second
 from ..model.drive import AxisMap
 from ..model.dynamics import gravity_torque
 from ..model.kinematics import foot_position
+from ..units import dynamics_text
 
 STATUS_OK, STATUS_UNSTABLE, STATUS_FAILED, STATUS_MISSING = "ok", "unstable", "failed", "missing"
 MIN_R2_MAP = 0.90  # a step the second-order fit explains less of is "failed", not a map point
@@ -95,12 +96,12 @@ class PointResult:
         return self.interval("fn")
 
     def text(self) -> str:
-        """"zeta 0.371 [0.365, 0.378], fn 6.98 [6.90, 7.05] Hz" for an "ok" point, else its
-        status and reason."""
+        """"zeta 0.371 [0.365, 0.378], fn 6.98 [6.90, 7.05] Hz" for an "ok" point (each to the
+        digits its interval supports: :func:`leglib.units.interval_text`), else its status and
+        reason."""
         if self.status != STATUS_OK:
             return f"{self.status}: {self.reason}"
-        (zl, zh), (fl, fh) = self.zeta_interval, self.fn_interval
-        return f"zeta {self.zeta:.3f} [{zl:.3f}, {zh:.3f}], fn {self.fn:.2f} [{fl:.2f}, {fh:.2f}] Hz"
+        return dynamics_text(self.zeta, self.fn, self.zeta_interval, self.fn_interval)
 
     def to_dict(self) -> dict:
         """Plain numbers for a metrics file: gains, status, reason, and for an "ok" point

@@ -27,8 +27,39 @@ from ..device.session import as_device
 from ..errors import ArgumentError, PoleError
 from ..experiments.torque import torque_loop
 from ..params import LegParams
+from ..units import derived, pretty, significant
 
 THESIS_POLES = (-7.0, -7.007, -7.014, -7.021)
+
+# the linear model's quantities (leglib.model.linear.linearize): states x = (q1, dq1, q2, dq2),
+# inputs u = (tau1, tau2), outputs y = (q1, q2); every gain's unit follows from them
+STATE_UNITS = {"q1": "rad", "dq1": "rad/s", "q2": "rad", "dq2": "rad/s"}
+INPUTS, INPUT_UNIT = ("tau1", "tau2"), "N*m"
+OUTPUTS, OUTPUT_UNIT = ("q1", "q2"), "rad"
+
+
+def model_units() -> dict:
+    """The unit of every entry of the linear model's A and B (x' = A x + B u), from its
+    quantities: A[i, j] is state i's rate per state j (1/s, 1/s², or - where a velocity is an
+    angle's rate), B[i, j] state i's rate per joint torque (rad/(N·m·s²) on a velocity's row,
+    1/kg m² in SI). Returns {"A": rows, "B": rows} of unit strings."""
+    states = list(STATE_UNITS.values())
+    return {"A": [[derived(s, x, "s") for x in states] for s in states],
+            "B": [[derived(s, INPUT_UNIT, "s") for _ in INPUTS] for s in states]}
+
+
+def gain_units() -> dict:
+    """The unit of every entry of K, L, Nbar and Ki, derived from the model's quantities
+    (:data:`STATE_UNITS`): u = -K x, so K[i, j] is N·m per state j (N·m/rad on an angle,
+    N·m·s/rad on a velocity); the observer adds L (y - C x̂) to dx̂/dt, so L[i, j] is state i's
+    rate per output angle (1/s on an angle's row, 1/s² on a velocity's); u = Nbar r with r an
+    angle, N·m/rad; u = -Ki z with z = ∫(y - r) dt, N·m/(rad·s). Returns {name: list of rows
+    of unit strings}."""
+    states = list(STATE_UNITS.values())
+    return {"K": [[derived(INPUT_UNIT, s) for s in states] for _ in INPUTS],
+            "L": [[derived(s, OUTPUT_UNIT, "s") for _ in OUTPUTS] for s in states],
+            "Nbar": [[derived(INPUT_UNIT, OUTPUT_UNIT) for _ in OUTPUTS] for _ in INPUTS],
+            "Ki": [[derived(INPUT_UNIT, OUTPUT_UNIT + "*s") for _ in OUTPUTS] for _ in INPUTS]}
 
 # the longest closed loop :func:`simulate_closed_loop` runs (the thesis's is 4.5 s), and the
 # most controller samples: it steps the nonlinear leg in Python, about 1 ms a sample
@@ -140,19 +171,38 @@ class StateFeedback:
     def observable(self) -> bool:
         return self.observability_rank == self.sys.nstates
 
+    def gains_markdown(self, sig: int = 4) -> str:
+        """K, L, Nbar (and Ki) as Markdown tables, every entry with its unit (:func:`gain_units`),
+        to ``sig`` significant digits: K and Nbar by input row and state / reference column,
+        L by state row and output column."""
+        units = gain_units()
+
+        def table(name, matrix, rows, cols, what):
+            m = np.atleast_2d(np.asarray(matrix, dtype=float))
+            u = units[name]
+            same_col = all(len({r[j] for r in u}) == 1 for j in range(m.shape[1]))
+            head = [f"{c} [{pretty(u[0][j])}]" if same_col else c for j, c in enumerate(cols)]
+            out = [f"**{name}** ({what})", "", "| | " + " | ".join(head) + " |" + ("" if same_col else " unit |"),
+                   "|---|" + "---|" * (len(cols) + (0 if same_col else 1))]
+            for i, r in enumerate(rows):
+                cells = " | ".join(significant(v, sig) for v in m[i])
+                out.append(f"| {r} | {cells} |" + ("" if same_col else f" {pretty(u[i][0])} |"))
+            return "\n".join(out)
+
+        states = list(STATE_UNITS)
+        parts = [table("K", self.K, INPUTS, states, "u = −K x̂"),
+                 table("L", self.L, states, [f"{o} error" for o in OUTPUTS], "observer: dx̂/dt += L (y − C x̂)"),
+                 table("Nbar", self.Nbar, INPUTS, [f"r {o}" for o in OUTPUTS], "u = Nbar r")]
+        if self.Ki is not None:
+            parts.append(table("Ki", self.Ki, INPUTS, [f"∫({o} − r) dt" for o in OUTPUTS], "u −= Ki z"))
+        return "\n\n".join(parts)
+
     def _repr_markdown_(self) -> str:
         fmt = (lambda z: f"{z.real:.4g}" if abs(z.imag) < 1e-12 else f"{z.real:.4g}{z.imag:+.4g}j")
         rows = ["| | |", "|---|---|",
                 f"| poles [1/s] | {', '.join(fmt(complex(p)) for p in self.poles)} |",
                 f"| observer poles [1/s] | {', '.join(fmt(complex(p)) for p in self.observer_poles)} |"]
-        rows += [f"| K row {i + 1} [N·m/rad, N·m·s/rad] | {', '.join(f'{k:.4g}' for k in row)} |"
-                 for i, row in enumerate(np.asarray(self.K))]
-        rows += [f"| Nbar row {i + 1} [N·m/rad] | {', '.join(f'{k:.4g}' for k in row)} |"
-                 for i, row in enumerate(np.atleast_2d(self.Nbar))]
-        if self.Ki is not None:
-            rows += [f"| Ki row {i + 1} [N·m/(rad·s)] | {', '.join(f'{k:.4g}' for k in row)} |"
-                     for i, row in enumerate(np.asarray(self.Ki))]
-        return "**State feedback by pole placement**\n\n" + "\n".join(rows)
+        return "**State feedback by pole placement**\n\n" + "\n".join(rows) + "\n\n" + self.gains_markdown()
 
     def plot(self, ax=None):
         """The placed and observer poles and the model's open-loop poles

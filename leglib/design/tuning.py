@@ -51,6 +51,7 @@ from ..model.cascade import axis_closed_loop_matrices, motor_side_inertia
 from ..model.drive import AxisMap
 from ..model.dynamics import mass_matrix
 from ..model.kinematics import foot_position
+from ..units import interval_text
 from .points import identify_response
 from .validation import verdict
 
@@ -326,11 +327,11 @@ class Tuning:
 
     def __str__(self) -> str:
         ez, ef = self.error
-        (zl, zh), (fl, fh) = self.intervals
+        zi, fi = self.intervals
         head = (f"target zeta {self.target[0]:.3g}, fn {self.target[1]:.3g} Hz: "
                 f"{'reached' if self.reached else 'NOT reached'} in {len(self.experiments)} experiments; "
-                f"gains ({', '.join(f'{g:.4g}' for g in self.gains)}), measured zeta {self.measured[0]:.3f} "
-                f"[{zl:.3f}, {zh:.3f}] ({ez:+.1%}), fn {self.measured[1]:.2f} [{fl:.2f}, {fh:.2f}] Hz "
+                f"gains ({', '.join(f'{g:.4g}' for g in self.gains)}), measured zeta "
+                f"{interval_text(self.measured[0], zi)} ({ez:+.1%}), fn {interval_text(self.measured[1], fi)} Hz "
                 f"({ef:+.1%}) (90 % intervals)")
         return head + "".join(f"\n{m}" for m in (self.verdict, self.message) if m)
 

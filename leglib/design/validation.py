@@ -26,6 +26,7 @@ from .. import plots
 from ..device.session import as_device
 from ..errors import OutsideRegionError
 from ..experiments.step import step_response
+from ..units import dynamics_text, percent_interval_text
 from .points import STATUS_OK, identify_response
 
 
@@ -185,11 +186,10 @@ class Validation:
                              + (" – |" if tol is not None else ""))
                 continue
             if r.identified:
-                (zl, zh), (fl, fh) = r.measured.zeta_interval, r.measured.fn_interval
-                (ezl, ezh), (efl, efh) = r.error_interval
-                meas = f"ζ {r.measured.zeta:.3f} [{zl:.3f}, {zh:.3f}], fn {r.measured.fn:.2f} [{fl:.2f}, {fh:.2f}]"
-                err = (f"{r.error[0]:+.1%} [{ezl:+.1%}, {ezh:+.1%}], "
-                       f"{r.error[1]:+.1%} [{efl:+.1%}, {efh:+.1%}]")
+                ez, ef = r.error_interval
+                meas = dynamics_text(r.measured.zeta, r.measured.fn, r.measured.zeta_interval,
+                                     r.measured.fn_interval, zeta_name="ζ")
+                err = f"{percent_interval_text(r.error[0], ez)}, {percent_interval_text(r.error[1], ef)}"
             else:
                 meas = f"not identifiable: {r.measured.reason or r.measured.status}"
                 err = "∞"

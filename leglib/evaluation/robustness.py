@@ -42,6 +42,7 @@ import numpy as np
 
 from .. import identify
 from .. import model as M
+from .._version import staleness as _staleness
 from ..design import statefeedback as SF
 from ..design.gainmap import GainMap
 from ..design.plantfit import fit_leg_plant, fitting_gains, twin_step_responses
@@ -56,6 +57,7 @@ from ..experiments.sweep import thesis_grid
 from ..experiments.torque import friction_experiment, play_torque_table
 from ..params import load_plant, plant_names
 from ..twin.host import Twin
+from ..units import dynamics_text
 
 THESIS_TARGET = (0.24, 5.0)
 #: gains at which the further targets are measured on each leg (moderate, stable)
@@ -450,8 +452,7 @@ def design_study_markdown(rows) -> str:
             lines.append(head + f"— | {r.failure.replace('|', '/')} | 0 |")
             continue
         d = r.design
-        (zl, zh), (fl, fh) = d.intervals
-        lines.append(head + f"ζ {d.measured[0]:.3f} [{zl:.3f}, {zh:.3f}], fn {d.measured[1]:.2f} [{fl:.2f}, {fh:.2f}] | "
+        lines.append(head + dynamics_text(*d.measured, *d.intervals, zeta_name="ζ") + " | "
                      f"{d.error[0]:+.1%}, {d.error[1]:+.1%} | {r.experiments}{'' if d.reached else ' (not reached)'} |")
     summary = design_summary(rows)
     lines += ["", "| plant, payload | median error | worst error | most experiments | reached |", "|---|---|---|---|---|"]
@@ -511,27 +512,11 @@ TABLE_DEPENDS_ON = ("leglib/identify", "leglib/design", "leglib/twin", "leglib/d
 def staleness(doc: dict, repo=None) -> str | None:
     """Whether a table written by :func:`write` (its ``commit``) is older than the code it
     depends on (:data:`TABLE_DEPENDS_ON`) in the git checkout ``repo`` (default: the one
-    leglib runs from). None when no commit since changed that code; else a sentence to show
-    beside the table: how many commits did, the latest of them, and what to run. Without git
-    or the commit (an installed leglib, a table from elsewhere) it says it cannot tell."""
-    commit = doc.get("commit")
-    root = Path(repo) if repo is not None else Path(__file__).resolve().parents[2]
-    if not commit:
-        return "This table does not say which commit wrote it: it may be older than the code it scores."
-    try:
-        out = subprocess.run(["git", "log", "--format=%h %s", f"{commit}..HEAD", "--", *TABLE_DEPENDS_ON],
-                             capture_output=True, text=True, cwd=root, timeout=20)
-    except (OSError, subprocess.SubprocessError):
-        return f"Written at commit {commit}; git is not available here to tell whether the code changed since."
-    if out.returncode != 0:
-        return (f"Written at commit {commit}, which this checkout does not have: it may be older than the "
-                "code it scores.")
-    changes = [line for line in out.stdout.splitlines() if line.strip()]
-    if not changes:
-        return None
-    latest = changes[0] if len(changes[0]) <= 100 else changes[0][:97] + "..."
-    return (f"Made by an older version: {len(changes)} commit(s) since {commit} changed the code it scores "
-            f"(latest: {latest}). Rerun `make robustness` for a current table.")
+    leglib runs from): :func:`leglib._version.staleness`, the one check every result read
+    from a file goes through. None when no commit since changed that code; else a sentence
+    to show beside the table."""
+    return _staleness(doc.get("commit"), TABLE_DEPENDS_ON, what="This table", code="the code it scores",
+                      rerun="Rerun `make robustness` for a current table.", repo=repo)
 
 
 def table_from_json(doc: dict) -> Table:

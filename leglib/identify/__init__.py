@@ -21,6 +21,7 @@ from .friction import (
                        effective_samples,
                        fit_friction,
                        fit_leg_friction,
+                       friction_table,
                        load_identified,
                        simulate_run,
 )
@@ -31,4 +32,4 @@ __all__ = ["IdentificationError", "MIN_R2", "SecondOrderFit", "METHODS", "second
            "ThesisReading", "matlab_smooth", "matlab_findpeaks", "effective_samples", "derivative",
            "FrictionFit", "MIN_DIRECTION_SAMPLES", "fit_friction", "FRICTION_MODELS",
            "LegFrictionFit", "compare_friction_models", "RunSimulator", "simulate_run",
-           "fit_leg_friction", "choose_friction_model", "load_identified"]
+           "fit_leg_friction", "friction_table", "choose_friction_model", "load_identified"]

@@ -27,6 +27,7 @@ from ..model.dynamics import (
     mass_matrix,
     simulate_torque_table,
 )
+from ..units import interval_text, pretty
 from .step import _r2
 
 
@@ -151,18 +152,19 @@ class FrictionFit:
     not_identifiable: dict = field(default_factory=dict)
     intervals: dict = field(default_factory=dict)
 
+    #: the unit of each reported value
+    UNITS = {"coulomb_pos": "N*m", "coulomb_neg": "N*m", "coulomb": "N*m", "viscous": "N*m*s/rad",
+             "inertia": "kg*m^2"}
+
     def table(self) -> str:
         """Markdown: each parameter with its 90 % interval, or why the data cannot give it."""
         rows = ["| parameter | value [90 % interval] |", "|---|---|"]
-        units = {"coulomb_pos": "N m", "coulomb_neg": "N m", "coulomb": "N m", "viscous": "N m s/rad",
-                 "inertia": "kg m²"}
-        for name, unit in units.items():
+        for name, unit in self.UNITS.items():
             why = self.not_identifiable.get(name)
             if why:
-                rows.append(f"| {name} [{unit}] | not identifiable: {why} |")
+                rows.append(f"| {name} [{pretty(unit)}] | not identifiable: {why} |")
                 continue
-            lo, hi = self.intervals.get(name, (math.nan, math.nan))
-            rows.append(f"| {name} [{unit}] | {getattr(self, name):.4g} [{lo:.4g}, {hi:.4g}] |")
+            rows.append(f"| {name} [{pretty(unit)}] | {interval_text(getattr(self, name), self.intervals.get(name))} |")
         return "\n".join(rows)
 
     def _repr_markdown_(self) -> str:
@@ -373,10 +375,13 @@ Z90 = 1.6448536269514722
 ONE_LEVEL = 0.05
 
 
-def _interval90(value: float, se: float) -> tuple:
+def _interval90(value: float, se: float, low: float = 0.0) -> tuple:
+    """value -+ 1.645 se, its low end no lower than the parameter's own bound ``low`` (0 for a
+    friction level; a signed parameter, an initial velocity or a cross damping, passes its
+    fit's lower bound: clipping it at 0 once gave dq2_0 = -1.56 the interval [0, -1.56])."""
     if not (math.isfinite(value) and math.isfinite(se)):
         return (math.nan, math.nan)
-    return (max(value - Z90 * se, 0.0), value + Z90 * se)
+    return (max(value - Z90 * se, low), value + Z90 * se)
 
 
 def _single_joint_identifiability(t, tau, v, eps, need, inertia_fitted, values) -> dict:
@@ -453,6 +458,12 @@ class LegFrictionFit:
     #: {parameter: why the data cannot give it}: a value fitted onto its bound
     not_identifiable: dict = field(default_factory=dict)
 
+    #: the unit of each parameter (the scales are relative to the nominal leg)
+    UNITS = {"viscous1": "N*m*s/rad", "viscous2": "N*m*s/rad", "coulomb1": "N*m", "coulomb2": "N*m",
+             "inertia_scale": "-", "mass_scale": "-", "dq1_0": "rad/s", "dq2_0": "rad/s", "v_smooth": "rad/s",
+             "c12": "N*m*s/rad", "c21": "N*m*s/rad", "stribeck1": "N*m", "stribeck2": "N*m",
+             "v_stribeck": "rad/s"}
+
     def simulate(self, run) -> np.ndarray:
         """Simulated (q1, q2) [rad] at the run's sample times from ``start`` on: (M, 2)."""
         return simulate_run(run, self.leg, self.friction, self.start,
@@ -464,6 +475,31 @@ class LegFrictionFit:
                 "not_identifiable": dict(self.not_identifiable), "converged": self.converged,
                 "rms_deg": list(self.rms_deg), "r2": list(self.r2), "aic": self.aic, "n": self.n,
                 "n_eff": self.n_eff, "start_s": self.start, "v_smooth": self.v_smooth}
+
+
+def friction_table(fits: dict) -> str:
+    """Markdown: the parameters of one or more :class:`LegFrictionFit` (``{column title: fit}``)
+    side by side, each with its unit and 90 % interval to the digits the interval supports,
+    "not identifiable" with the reason where the run does not hold it, "—" where a fit has no
+    such parameter; then each fit's RMS error (two significant digits), R² and AIC."""
+    names = list(dict.fromkeys(k for f in fits.values() for k in f.params))
+
+    def cell(f, k):
+        if k not in f.params:
+            return "—"
+        if k in f.not_identifiable:
+            return f"not identifiable: {f.not_identifiable[k]}"
+        return interval_text(f.params[k], f.intervals.get(k))
+
+    head = "| parameter | unit | " + " | ".join(f"{t} [90 % interval]" for t in fits) + " |"
+    rows = [head, "|---|---|" + "---|" * len(fits)]
+    rows += [f"| {k} | {pretty(LegFrictionFit.UNITS.get(k, '')) or '-'} | "
+             + " | ".join(cell(f, k) for f in fits.values()) + " |" for k in names]
+    rows.append("| RMS q1, q2 | deg | " + " | ".join(", ".join(f"{v:.2g}" for v in f.rms_deg) for f in fits.values())
+                + " |")
+    rows.append("| R² q1, q2 | - | " + " | ".join(", ".join(f"{v:.6f}" for v in f.r2) for f in fits.values()) + " |")
+    rows.append("| AIC | - | " + " | ".join(f"{f.aic:.1f}" for f in fits.values()) + " |")
+    return "\n".join(rows)
 
 
 def compare_friction_models(fits: dict) -> dict:
@@ -655,7 +691,8 @@ def fit_leg_friction(run, leg, model: str = "coulomb_viscous", cross: bool = Fal
             if abs(value - bound) <= 1e-6 * span and not name.startswith("dq"):
                 why[name] = (f"fitted onto its {word} bound {bound:g}: the run does not hold its value (a fit that "
                              f"wants it past what the model allows); vary the torque more where it acts")
-    intervals = {name: (math.nan, math.nan) if name in why else _interval90(float(d[name]), se[name]) for name in names}
+    intervals = {name: (math.nan, math.nan) if name in why else _interval90(float(d[name]), se[name], float(low))
+                 for name, low in zip(names, lo)}
     return LegFrictionFit(model=model, params={k: float(v) for k, v in d.items()}, stderr=se,
                           intervals=intervals, not_identifiable=why,
                           rms_deg=tuple(float(np.degrees(np.sqrt(np.mean(r[:, j] ** 2)))) for j in (0, 1)),

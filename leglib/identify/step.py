@@ -37,6 +37,7 @@ from scipy.signal import find_peaks, savgol_filter
 
 from .. import checks, plots
 from ..errors import IdentificationError
+from ..units import interval_text
 from .fastfit import (
     C_DELAY,
     C_GAIN,
@@ -109,8 +110,8 @@ class SecondOrderFit:
             return ("| ζ | ωn [rad/s] | fn [Hz] | fd [Hz] | R² | |\n|---|---|---|---|---|---|\n"
                     f"| {self.zeta:.4f} | {self.wn:.3f} | {self.fn:.3f} | {fd} | {self.r2:.4f} | {self.method}, {kind} |")
         return (f"| ζ [{iv.level:.0%} interval] | fn [Hz] | fd [Hz] | R² | |\n|---|---|---|---|---|\n"
-                f"| {iv.text('zeta', self.zeta, 3)} | {iv.text('fn', self.fn, 2)} | "
-                f"{iv.text('fd', self.fd, 2) if self.zeta < 1 else '–'} | {self.r2:.4f} | {self.method}, {kind} |")
+                f"| {iv.text('zeta', self.zeta)} | {iv.text('fn', self.fn)} | "
+                f"{iv.text('fd', self.fd) if self.zeta < 1 else '–'} | {self.r2:.4f} | {self.method}, {kind} |")
 
     def plot(self, t, y, ax=None):
         """The measured response ``y(t)`` with this fit (:func:`leglib.plots.plot_step_identification`)."""
@@ -328,10 +329,9 @@ class FitIntervals:
         """h / |value|: the interval's relative half-width."""
         return self.half_width(name) / abs(value) if value else math.inf
 
-    def text(self, name: str, value: float, digits: int = 3) -> str:
-        """"value [low, high]" with ``digits`` decimals."""
-        lo, hi = getattr(self, name)
-        return f"{value:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+    def text(self, name: str, value: float, unit: str = "") -> str:
+        """"value [low, high]" to the digits the interval supports (:func:`leglib.units.interval_text`)."""
+        return interval_text(value, getattr(self, name), unit)
 
     def to_dict(self) -> dict:
         """Plain numbers for a metrics file: the intervals, standard errors and model errors."""

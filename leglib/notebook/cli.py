@@ -2,7 +2,9 @@
 ``python -m leglib batch SPEC [--scheduler tcp://...]`` runs notebooks over a grid;
 ``python -m leglib robustness`` writes the robustness table to reports/robustness/;
 ``python -m leglib design --backend usb --zeta 0.24 --fn 5`` finds gains for prescribed
-dynamics on a leg in a few steps (``lg.tune``), its bench time estimated first and limited.
+dynamics on a leg in a few steps (``lg.tune``), its bench time estimated first and limited;
+``python -m leglib odrivetool [--seed N --firmware 0.5.6 --plant NAME]`` opens odrivetool's
+shell with ``odrv0`` on a virtual ODrive.
 
 A bad argument (an unreachable or malformed scheduler, an output directory that cannot be
 written, a payload out of range, a bad spec) is one line on stderr (``error: ...``) and
@@ -186,6 +188,14 @@ def _parser() -> argparse.ArgumentParser:
                      help=f"the twin's foot payload [kg], virtual only, 0 to {MAX_PAYLOAD:g} (default: %(default)g)")
     des.add_argument("--save", default=None, metavar="PATH",
                      help="write the design (cascade gains, target, measured) to this JSON file (default: not saved)")
+    tool = sub.add_parser("odrivetool", help="odrivetool's shell (IPython, odrv0) on a virtual ODrive v3.6")
+    tool.add_argument("--seed", type=_seed, default=0, help="the virtual ODrive's seed: its serial number, "
+                      "its noise (default: %(default)s)")
+    tool.add_argument("--firmware", default="0.5.6", choices=("0.5.6", "0.5.1"),
+                      help="firmware release (default: %(default)s)")
+    tool.add_argument("--plant", default="default", choices=plants or None, metavar="PLANT",
+                      help=f"the leg it drives, of {{{', '.join(plants)}}} (default: %(default)s)")
+    tool.add_argument("--no-ipython", action="store_true", help="the plain Python console instead of IPython")
     return parser
 
 
@@ -228,12 +238,42 @@ def _design(args) -> int:
     return 0 if result.reached else 1
 
 
+def odrivetool(seed: int = 0, firmware: str = "0.5.6", plant: str = "default", no_ipython: bool = False) -> int:
+    """odrivetool's interactive shell (``odrive.shell.launch_shell``: IPython, the
+    ``odrive.utils`` and ``odrive.enums`` names, ``odrv0``) on the virtual ODrive of
+    ``seed``, paced in real time; the client's device manager looks for ODrives on the
+    virtual interface only, so odrv0 is the virtual board and is found again after every
+    reboot (save_configuration, restore_config)."""
+    import asyncio  # load time: for this command only
+
+    async def shell():
+        from odrive.device_manager import get_device_manager  # load time: the odrive client, for this command only
+        from odrive.shell import launch_shell, load_default_ns  # load time: the odrive client, for this command only
+
+        from ..device.virtual import wire  # load time: the device layer, for this command only
+        dm = get_device_manager()                      # bound to this loop, as odrivetool's
+        wire.find_any(seed=seed, firmware=firmware, plant=plant, realtime=True)
+        _, intf = wire._manager()
+        dm.default_interfaces = {intf}
+        print(f"virtual ODrive v3.6-56V, firmware {firmware}, seed {seed} (serial "
+              f"{wire.serial_for_seed(seed):012X}), plant {plant!r}, in real time")
+        await launch_shell(load_default_ns(), {}, dm, no_ipython=no_ipython)
+
+    asyncio.run(shell())
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     if args.command == "design":
         try:
             return _design(args)
         except (LeglibError, OSError) as exc:
+            return _fail(exc)
+    if args.command == "odrivetool":
+        try:
+            return odrivetool(args.seed, args.firmware, args.plant, args.no_ipython)
+        except (LeglibError, ValueError) as exc:
             return _fail(exc)
     if args.command == "robustness":
         from ..evaluation import robustness  # load time: every layer (numba, control), for this command only

@@ -14,6 +14,9 @@ import math
 import re
 from pathlib import Path
 
+from ..identify.friction import FrictionFit, LegFrictionFit
+from ..units import dynamics_text, interval_text, significant
+
 
 def read_metrics(path) -> dict:
     """A notebook's metrics JSON (the file :func:`leglib.notebook.setup.write_metrics` wrote)."""
@@ -26,9 +29,9 @@ def read_metrics(path) -> dict:
         raise ValueError(f"{p}: not a metrics file ({exc})") from None
 
 
-def _iv(pair, digits: int, kind: str = "f") -> str:
-    lo, hi = pair
-    return f"[{lo:.{digits}{kind}}, {hi:.{digits}{kind}}]"
+def _dyn(d: dict, zeta: str = "zeta", fn: str = "fn") -> str:
+    """ "zeta 0.24 [0.17, 0.31], fn 5.0 [4.5, 5.6] Hz" of a metrics dict's values and intervals."""
+    return dynamics_text(d[zeta], d[fn], d[f"{zeta}_interval"], d[f"{fn}_interval"])
 
 
 def _pct(x: float, digits: int = 1, sign: bool = True) -> str:
@@ -60,8 +63,8 @@ def derivation(m: dict) -> str:
                f"{m['printed_A_max_real_eig']:+.1f} 1/s: unstable; with {-a33:+.2f} the largest real part is "
                f"{m['corrected_A_max_real_eig']:+.2f} 1/s.")
     out.append(f"- Near the operating point the linear model follows the nonlinear one to "
-               f"{m['linear_vs_nonlinear_rms_deg']:.3f} deg RMS over {m['linear_vs_nonlinear_travel_deg']:.2f} deg "
-               f"of travel.")
+               f"{significant(m['linear_vs_nonlinear_rms_deg'], 2)} deg RMS over "
+               f"{m['linear_vs_nonlinear_travel_deg']:.2f} deg of travel.")
     out.append(f"- The thesis's parallelogram model (a) and the exact five-bar (b) differ in inertia by "
                f"{_pct(m['inertia_rel_difference_median'], sign=False)} (median) up to "
                f"{_pct(m['inertia_rel_difference_max'], sign=False)} over the working range.")
@@ -92,17 +95,17 @@ def derivation(m: dict) -> str:
 def friction(m: dict) -> str:
     """Notebook 02: the friction fit (values with intervals, or not identifiable), the single
     joint's, and the Fig. 6.9 step in both measures."""
-    out = [f"- The identified five-bar reproduces the measured angles to {max(m['rms_deg']):.4f} deg RMS (nominal "
-           f"model before: {max(m['rms_before_deg']):.2f} deg); preferred friction model: {m['preferred_model']}."]
+    out = [f"- The identified five-bar reproduces the measured angles to {significant(max(m['rms_deg']), 2)} deg RMS "
+           f"(nominal model before: {significant(max(m['rms_before_deg']), 2)} deg); preferred friction model: "
+           f"{m['preferred_model']}."]
     f = m["friction"]
     for name in ("viscous1", "viscous2", "coulomb1", "coulomb2"):
         if name in f["not_identifiable"]:
             out.append(f"- {name}: not identifiable: {f['not_identifiable'][name]}")
-    shown = [f"{k} {f['params'][k]:.4g} {_iv(f['intervals'][k], 4, 'g')}" for k in ("viscous1", "viscous2", "coulomb1",
-                                                                            "coulomb2")
-             if k not in f["not_identifiable"]]
+    shown = [f"{k} {interval_text(f['params'][k], f['intervals'][k], LegFrictionFit.UNITS[k])}"
+             for k in ("viscous1", "viscous2", "coulomb1", "coulomb2") if k not in f["not_identifiable"]]
     if shown:
-        out.append("- Friction per joint (90 % intervals; viscous N m s/rad, Coulomb N m): " + ", ".join(shown) + ".")
+        out.append("- Friction per joint (90 % intervals): " + ", ".join(shown) + ".")
     if m["recovery_rel_error"]:
         worst = max(m["recovery_rel_error"], key=lambda k: abs(m["recovery_rel_error"][k]))
         out.append(f"- Against the twin's hidden truth the largest relative error is "
@@ -110,14 +113,13 @@ def friction(m: dict) -> str:
     sj = m["single_joint"]
     if sj:
         parts = []
-        for name, unit in (("coulomb", "N m"), ("viscous", "N m s/rad"), ("inertia", "kg m²")):
+        for name in ("coulomb", "viscous", "inertia"):
             why = sj["not_identifiable"].get(name)
             parts.append(f"{name}: not identifiable ({why})" if why else
-                         f"{name} {sj[name]:.4g} {_iv(sj['intervals'][name], 4, 'g')} {unit}")
+                         f"{name} {interval_text(sj[name], sj['intervals'][name], FrictionFit.UNITS[name])}")
         out.append(f"- The single-joint fit, from {sj['directions']} direction(s): " + "; ".join(parts) + ".")
     s = m["step_fit"]
-    out.append(f"- The Fig. 6.9 step identifies as zeta {s['zeta']:.3f} {_iv(s['zeta_interval'], 3)}, fn "
-               f"{s['fn']:.2f} {_iv(s['fn_interval'], 2)} Hz (90 % intervals; R² {s['r2']:.3f}).")
+    out.append(f"- The Fig. 6.9 step identifies as {_dyn(s)} (90 % intervals; R² {s['r2']:.3f}).")
     th = m["step_thesis_reading"]
     if th["problem"]:
         out.append(f"- Listing 7.7 on the same step reads zeta {th['zeta']:.3f}, but **the listing fails here**: "
@@ -147,9 +149,8 @@ def sweeps(m: dict) -> str:
     t = m["thesis_target_nearest"]
     if t:
         out.append(f"- The thesis's numbers ({t['target'][0]:.2f}, {t['target'][1]:g} Hz) taken as true zeta and fn are "
-                   f"{'inside' if t['inside'] else 'outside'} this region; the map's nearest point: zeta "
-                   f"{t['zeta']:.3f} {_iv(t['zeta_interval'], 3)}, fn {t['fn']:.2f} {_iv(t['fn_interval'], 2)} Hz "
-                   f"(90 % intervals).")
+                   f"{'inside' if t['inside'] else 'outside'} this region; the map's nearest point: "
+                   f"{_dyn(t)} (90 % intervals).")
     reach = m["listing_reach"]
     if reach["points"]:
         out.append(f"- In the thesis's measure Listing 7.7 reads at most zeta {reach['max_thesis_zeta']:.3f} over the "
@@ -197,8 +198,7 @@ def validation(m: dict) -> str:
     t = m["thesis_target"]
     out.append(f"- Taken as true zeta and fn, the thesis's target ({t['target'][0]:.2f}, {t['target'][1]:g} Hz) is "
                f"{'inside' if t['inside_region'] else 'outside'} the map's achievable region; the map's gains give "
-               f"zeta {t['zeta']:.3f} {_iv(t['zeta_interval'], 3)}, fn {t['fn']:.2f} {_iv(t['fn_interval'], 2)} Hz "
-               f"(90 % intervals), {_pct(t['error_zeta'])} and {_pct(t['error_fn'])} from the target; "
+               f"{_dyn(t)} (90 % intervals), {_pct(t['error_zeta'])} and {_pct(t['error_fn'])} from the target; "
                f"{t['verdict']} (tolerance {_pct(t['tolerance'], 0, False)}).")
     for method, v in m["summary"].items():
         reached = (f"; {v['reached']} reached within {_pct(v['tolerance'], 0, False)} by their intervals, "
@@ -285,7 +285,9 @@ def _same(token: str, value: float, percent: bool) -> bool:
         digits = len(mant.split(".")[1]) if "." in mant else 0
         if any(round(abs(v), digits) == round(abs(x), digits) for v in candidates):
             return True
-    sig = len(mant.replace(".", "").lstrip("0"))
+    # significant digits; an integer's trailing zeros are places, not digits ("1230" for 1234.5
+    # written to the tens its interval supports)
+    sig = len(mant.replace(".", "").lstrip("0")) if "." in mant else len(mant.lstrip("0").rstrip("0"))
     return sig > 0 and any(float(f"{abs(v):.{sig - 1}e}") == float(f"{abs(x):.{sig - 1}e}") for v in candidates)
 
 

@@ -1,5 +1,5 @@
 """Reports that work without internet: the maths as MathML, the animation player's buttons
-as characters.
+as characters; and :func:`unrendered_tables`, the check that a report's tables rendered.
 
 nbconvert's HTML leaves TeX in the page for MathJax, which it loads from a CDN, and
 matplotlib's animation player draws its buttons with Font Awesome, also from a CDN: opened
@@ -80,3 +80,28 @@ def offline_notebook(nb) -> int:
                 data["text/markdown"] = markdown_math(_text(data["text/markdown"]))
         changed += str(cell) != before
     return changed
+
+
+# ---------------------------------------------------------------------------------------
+# tables that did not render
+# ---------------------------------------------------------------------------------------
+
+# a Markdown table's separator row (|---|:---:|), or a row of cells (| a | b |)
+_SEPARATOR = re.compile(r"^\s*\|?\s*:?-{3,}:?\s*(\|\s*:?-{3,}:?\s*)+\|?\s*$")
+_ROW = re.compile(r"^\s*\|.*\|.*\|\s*$")
+_PROSE = re.compile(r"<(p|li)\b[^>]*>(.*?)</\1>", re.S)
+_TAG = re.compile(r"<[^>]+>")
+
+
+def unrendered_tables(html: str) -> list[str]:
+    """Markdown tables an HTML report shows as text: a paragraph or list item holding a
+    table's separator row (``|---|---|``) or two or more rows of cells. Markdown renders a
+    table only when a blank line sets it apart from the text before it; without one, the
+    table is a paragraph of pipes. Returns the start of each such text."""
+    found = []
+    for m in _PROSE.finditer(html):
+        text = _TAG.sub("", m.group(2))
+        lines = [ln for ln in text.splitlines() if ln.strip()]
+        if any(_SEPARATOR.match(ln) for ln in lines) or sum(bool(_ROW.match(ln)) for ln in lines) >= 2:
+            found.append(" ".join(text.split())[:80])
+    return found

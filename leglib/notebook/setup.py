@@ -10,6 +10,7 @@ against them); the call states only what types cannot say: ranges, choices, rela
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import math
@@ -25,6 +26,7 @@ from .. import plots
 from ..errors import NotebookParameterError, ParameterError
 from ..files.atomic import write_bytes_atomic, write_json_atomic
 from ..params import load_plant
+from ..units import pretty
 from .run import REPO
 
 
@@ -222,8 +224,8 @@ def require_readable_file(name: str, value: Any) -> Path:
 
 def write_metrics(path: str | Path, **metrics) -> Path:
     """The small metrics JSON every notebook writes (tests assert on it), with
-    ``figure_text_overlaps``: the figures this process saved whose texts overlap
-    (:data:`FIGURE_OVERLAPS`, empty when every figure reads)."""
+    ``figure_text_overlaps``: the figures this process saved whose texts overlap or whose
+    legends sit on data (:data:`FIGURE_OVERLAPS`, empty when every figure reads)."""
     metrics.setdefault("figure_text_overlaps", {k: v for k, v in FIGURE_OVERLAPS.items() if v})
     return write_json_atomic(path, metrics)
 
@@ -236,7 +238,8 @@ def add_metrics(path: str | Path, **metrics) -> Path:
 
 
 class FigureLayoutWarning(UserWarning):
-    """A saved figure has texts that overlap (:func:`leglib.plots.text_overlaps`)."""
+    """A saved figure has texts that overlap (:func:`leglib.plots.text_overlaps`) or a legend
+    on data (:func:`leglib.plots.legends_on_data`)."""
 
 
 # figure name -> its overlapping texts, for every figure save_figure wrote in this process
@@ -245,12 +248,15 @@ FIGURE_OVERLAPS: dict[str, list[str]] = {}
 
 def save_figure(fig, figures_dir: str | Path, name: str) -> Path:
     """Save ``fig`` as ``<figures_dir>/<name>.png`` (whole or not at all; a full disk names
-    the file) and return the path. Its texts are checked for overlaps first: any found are
-    a :class:`FigureLayoutWarning` and go into the notebook's metrics (:func:`write_metrics`)."""
-    overlaps = plots.text_overlaps(fig)
+    the file) and return the path. A legend that covers data is moved off it first
+    (:func:`leglib.plots.keep_legends_off_data`); then the texts are checked for overlaps and
+    the legends for data they still cover: any found are a :class:`FigureLayoutWarning` and
+    go into the notebook's metrics (:func:`write_metrics`)."""
+    plots.keep_legends_off_data(fig)
+    overlaps = plots.text_overlaps(fig) + plots.legends_on_data(fig)
     FIGURE_OVERLAPS[name] = overlaps
     if overlaps:
-        warnings.warn(f"figure {name}: {len(overlaps)} overlapping text(s): " + "; ".join(overlaps[:4])
+        warnings.warn(f"figure {name}: {len(overlaps)} overlapping text(s) or legend(s) on data: " + "; ".join(overlaps[:4])
                       + (" ..." if len(overlaps) > 4 else ""), FigureLayoutWarning, stacklevel=2)
     out = Path(figures_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -260,16 +266,43 @@ def save_figure(fig, figures_dir: str | Path, name: str) -> Path:
     return write_bytes_atomic(path, buf.getvalue(), overwrite=True)
 
 
-def matrix_comparison_markdown(name: str, ours, theirs, digits: int = 2) -> str:
-    """Markdown table of two matrices side by side with the relative error of each entry."""
+def matrix_comparison_markdown(name: str, ours, theirs, digits: int = 2, units=None) -> str:
+    """Markdown table of two matrices side by side with the relative error of each entry;
+    ``units`` (a matrix of unit strings, e.g. :func:`leglib.design.statefeedback.model_units`)
+    adds each row's entries' units."""
     ours, theirs = np.asarray(ours), np.asarray(theirs)
     rows = [f"**{name}** — leglib │ thesis │ relative error", "",
-            "| row | leglib | thesis | rel. error |", "|---|---|---|---|"]
+            "| row | leglib | thesis | rel. error |" + (" units |" if units is not None else ""),
+            "|---|---|---|---|" + ("---|" if units is not None else "")]
     for i in range(ours.shape[0]):
         o = ", ".join(f"{v:.{digits}f}" for v in ours[i])
         t = ", ".join(f"{v:.{digits}f}" for v in theirs[i])
         err = ", ".join("—" if v == 0 else f"{abs(a - v) / abs(v):.1e}" for a, v in zip(ours[i], theirs[i]))
-        rows.append(f"| {i} | {o} | {t} | {err} |")
+        u = f" {', '.join(pretty(x) for x in units[i])} |" if units is not None else ""
+        rows.append(f"| {i} | {o} | {t} | {err} |{u}")
+    return "\n".join(rows)
+
+
+def parameter_markdown(params, digits: int = 6) -> str:
+    """A parameter set (the frozen dataclasses of :mod:`leglib.params`: a leg, a plant, a motor)
+    as a Markdown table, one row per section of its file: each value with the unit its field
+    declares (angles in degrees), as the file gives it (up to ``digits`` significant digits,
+    no zeros added: 0.09 m stays 0.09 m)."""
+    sections: dict[str, list[str]] = {}
+    for f in dataclasses.fields(params):
+        unit = f.metadata.get("unit")
+        if unit is None:
+            continue
+        value = getattr(params, f.name)
+        if isinstance(value, str):
+            text = value
+        elif unit == "rad":
+            text = f"{math.degrees(value):.{digits}g} deg"
+        else:
+            text = f"{value:.{digits}g}" + (f" {pretty(unit)}" if unit not in ("", "-") else "")
+        sections.setdefault(f.metadata.get("section", ""), []).append(f"{f.name} = {text}")
+    rows = ["| section | values [unit] |", "|---|---|"]
+    rows += [f"| {sec} | {', '.join(vals)} |" for sec, vals in sections.items()]
     return "\n".join(rows)
 
 

@@ -14,6 +14,7 @@ from ..design.points import STATUS_FAILED, commanded_height, identify_response
 from ..errors import ArgumentError
 from ..experiments.step import step_response
 from ..thesis import foot_mass, virtual_leg
+from ..units import dynamics_text, interval_text, shown, significant
 
 THESIS_TORQUE_LIMIT = 0.73  # N*m at a joint: the thesis's current limit through the 1:3 belt
 
@@ -99,12 +100,20 @@ class PanelFigure:
 
 
 def design_readout(d) -> str:
-    """The text the pole-placement panel shows for a design (also used by tests). Single
-    spaces only, so the text a browser renders is this string exactly."""
-    K = " ".join(f"{v:.4f}" for v in d.K.ravel())
-    L = " ".join(f"{v:.2f}" for v in d.L.ravel())
-    Nbar = " ".join(f"{v:.4f}" for v in d.Nbar.ravel())
-    return f"K = [{K}]; L = [{L}]; Nbar = [{Nbar}]"
+    """The text the pole-placement panel shows for a design (also used by tests): K, L and Nbar
+    row by row to four significant digits, each with its units (K per state: N·m/rad on the
+    angles, N·m·s/rad on the velocities; L per state row: 1/s, 1/s²; Nbar N·m/rad:
+    :func:`leglib.design.statefeedback.gain_units`). Single spaces only, so the text a browser
+    renders is this string exactly."""
+    units = SF.gain_units()
+
+    def flat(m):
+        return " ".join(significant(v, 4) for v in np.asarray(m).ravel())
+
+    k_units = ", ".join(units["K"][0])
+    l_units = ", ".join(row[0] for row in units["L"])
+    return (f"K = [{flat(d.K)}] ({k_units} by state); L = [{flat(d.L)}] ({l_units} by state row); "
+            f"Nbar = [{flat(d.Nbar)}] ({units['Nbar'][0][0]})")
 
 
 def panel_poles(center: float, spread: float, zeta: float = 1.0) -> np.ndarray:
@@ -235,7 +244,8 @@ def pole_placement_panel(sys, center: float = -7.0, spread: float = 0.007, obser
         a3.set_xlabel("t [s]")
         a3.set_ylabel("joint torque deviation [N m]")
         a3.set_title("torques against the limit")
-        a3.legend(fontsize=7)
+        # beside the panel: inside, the torques and both limits leave no place it would not cover
+        a3.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
         view.show()
 
     for s in (s_center, s_spread, s_obs, s_zeta, t_poles):
@@ -262,10 +272,10 @@ def step_readout(resp, identified=None, leg=None) -> str:
         return f"not a second-order step: {why}"
     if p.status != "ok":
         return f"{p.status}: {p.reason}"
-    zeta, fn = round(p.zeta, 3), round(p.fn, 2)
+    # each number to the digits its interval supports; b and k below from the numbers shown
+    zeta, fn = shown(p.zeta, p.zeta_interval), shown(p.fn, p.fn_interval)
     (zl, zh), (fl, fh) = p.zeta_interval, p.fn_interval
-    text = (f"zeta = {zeta:.3f} [{zl:.3f}, {zh:.3f}], fn = {fn:.2f} [{fl:.2f}, {fh:.2f}] Hz "
-            f"(90 % intervals), R^2 = {p.r2:.3f}")
+    text = f"{dynamics_text(p.zeta, p.fn, p.zeta_interval, p.fn_interval, sep='=')} (90 % intervals), R^2 = {p.r2:.3f}"
     if leg is not None:
         # of the (zeta, fn) shown, so the line is a function of what the reader sees; b and k
         # grow with zeta and fn, so the intervals' ends bound them
@@ -273,8 +283,8 @@ def step_readout(resp, identified=None, leg=None) -> str:
         v = virtual_leg(zeta, fn, mass)
         lo = virtual_leg(max(zl, 1e-9), max(fl, 1e-9), mass)
         hi = virtual_leg(zh, fh, mass)
-        text += (f"; at the foot m = {v.m:.3f} kg, b = {v.b:.2f} [{lo.b:.2f}, {hi.b:.2f}] N s/m, "
-                 f"k = {v.k:.0f} [{lo.k:.0f}, {hi.k:.0f}] N/m")
+        text += (f"; at the foot m = {v.m:.3f} kg, b = {interval_text(v.b, (lo.b, hi.b), 'N*s/m')}, "
+                 f"k = {interval_text(v.k, (lo.k, hi.k), 'N/m')}")
     return text
 
 
@@ -289,7 +299,8 @@ def gain_step_panel(odrv, gm=None, pos_gain: float = 50.0, vel_gain: float = 0.0
     """Sliders for pos_gain, vel_gain and vel_integrator_gain: each change runs one step
     (:func:`leglib.experiments.step.step_response`) and shows the response with its fitted
     second-order step, the setpoint and R^2 (or "not a second-order step"), the readout
-    (:func:`step_readout`), and its place on the map's achievable region."""
+    (:func:`step_readout`), and its place on the map's achievable region. The panel's
+    ``last_step`` is the :class:`~leglib.experiments.step.StepResponse` it shows."""
     import ipywidgets as W  # load time: ipywidgets, only inside a notebook
 
     cfg = odrv.config
@@ -313,6 +324,7 @@ def gain_step_panel(odrv, gm=None, pos_gain: float = 50.0, vel_gain: float = 0.0
 
     def redraw(*_):
         resp = step_response(odrv, s_pos.value, s_vel.value, s_int.value)
+        panel.last_step = resp
         p = identify_response(resp, leg)
         text = step_readout(resp, p, leg=leg)
         readout.value = f"<code class='leglib-readout'>{text}</code>"
@@ -337,7 +349,9 @@ def gain_step_panel(odrv, gm=None, pos_gain: float = 50.0, vel_gain: float = 0.0
             here.set_offsets(np.array([[p.zeta, p.fn]]) if p.status == "ok" else np.empty((0, 2)))
         view.show()
 
+    panel = W.VBox([W.HBox([s_pos, s_vel, s_int]), readout, out])
+    panel.last_step = None   # the StepResponse the readout and the figure show
     for s in (s_pos, s_vel, s_int):
         s.observe(redraw, names="value")
     redraw()
-    return W.VBox([W.HBox([s_pos, s_vel, s_int]), readout, out])
+    return panel

@@ -30,6 +30,8 @@ from ..kernelmath import py_min
 from .effects import _encoder_error
 from .layout import (
     AXIS_ERROR_CONTROLLER_FAILED,
+    AXIS_ERROR_DC_BUS_OVER_VOLTAGE,
+    AXIS_ERROR_DC_BUS_UNDER_VOLTAGE,
     AXIS_ERROR_MOTOR_FAILED,
     AXIS_ERROR_WATCHDOG_TIMER_EXPIRED,
     C_ABORT_ERROR,
@@ -71,6 +73,7 @@ from .layout import (
     C_MECH_BW,
     C_MIRROR_AXIS,
     C_MIRROR_RATIO,
+    C_OV_TRIP,
     C_PHASE_L,
     C_PHASE_R,
     C_POS_GAIN,
@@ -95,7 +98,10 @@ from .layout import (
     C_TUNE_POS_AMP,
     C_TUNE_TQ_AMP,
     C_TUNE_VEL_AMP,
+    C_UV_TRIP,
     C_VBUS,
+    C_VBUS_CHECKS,
+    C_VBUS_R,
     C_VEL_GAIN,
     C_VEL_INT_GAIN,
     C_VEL_INT_LIMIT,
@@ -145,6 +151,8 @@ from .layout import (
     N_IROWS,
     ODRIVE_ERROR_DC_BUS_OVER_CURRENT,
     ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT,
+    ODRIVE_ERROR_DC_BUS_OVER_VOLTAGE,
+    ODRIVE_ERROR_DC_BUS_UNDER_VOLTAGE,
     R_DEAD,
     R_NF,
     R_Q,
@@ -284,7 +292,28 @@ def _run_block_any(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABO
 def _board_checks(b, C, AS, AI):
     """main.cpp:413-420, axis.cpp:165-182: the axis checks and the watchdog, in every state.
     An enabled watchdog counts down every tick, IDLE included, and at 0 sets its error
-    (kept while it is not fed); any axis error disarms the motor."""
+    (kept while it is not fed); any axis error disarms the motor.
+
+    main.cpp:300-305 (called every current measurement, armed or not): the bus voltage --
+    the supply's voltage less its source resistance times the last tick's bus current --
+    outside the trip levels disarms both motors and the brake resistor with the board's
+    error (0.5.2+), or sets the axes' errors (fw-v0.5.1 axis.cpp:173-176)."""
+    if C[b, 0, C_VBUS_CHECKS] > 0.0:
+        vbus = C[b, 0, C_VBUS] - C[b, 0, C_VBUS_R] * AS[b, 0, S_IBUS]
+        under = not (vbus >= C[b, 0, C_UV_TRIP])
+        over = not (vbus <= C[b, 0, C_OV_TRIP])
+        if under or over:
+            if C[b, 0, C_REGEN_ERR_STYLE] > 0.0:     # 0.5.1
+                for a in range(2):
+                    AI[b, a, I_AXIS_ERR] |= ((AXIS_ERROR_DC_BUS_UNDER_VOLTAGE if under else 0)
+                                             | (AXIS_ERROR_DC_BUS_OVER_VOLTAGE if over else 0))
+            else:                                     # main.cpp:313-321 disarm_with_error
+                for a in range(2):
+                    AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_SYSTEM_LEVEL
+                    AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
+                C[b, 0, C_BRAKE_ON] = 0.0
+                AI[b, 0, I_SYS_ERR] |= ((ODRIVE_ERROR_DC_BUS_UNDER_VOLTAGE if under else 0)
+                                        | (ODRIVE_ERROR_DC_BUS_OVER_VOLTAGE if over else 0))
     for a in range(2):
         if C[b, a, C_WD_ENABLE] > 0.0:
             if AS[b, a, S_WD_TIMER] > 0.0:

@@ -38,6 +38,11 @@ INPUT_MODE_TUNING = 8      # 0.5.6 (not in fw-v0.5.1)
  C_CAL_VEL, C_CAL_CURRENT, C_INT_RESET_TORQUE, C_CAL_RAMP) = range(33)
 # system (board) configuration, kept in the slots of axis 0: C[b, 0, k]
 (C_BRAKE_ON, C_BRAKE_R, C_MAX_REGEN, C_DC_MAX_POS, C_DC_MAX_NEG, C_VBUS, C_REGEN_ERR_STYLE) = range(33, 40)
+# appended for the board's power supply (read only by kernel._board_checks; slots of axis 0):
+# the supply's source resistance [ohm], config.dc_bus_undervoltage_trip_level and
+# config.dc_bus_overvoltage_trip_level [V], and whether the board checks them (1: a virtual
+# ODrive's board, main.cpp:300-305; 0: a bare Twin, whose C array starts at zero)
+C_VBUS_R, C_UV_TRIP, C_OV_TRIP, C_VBUS_CHECKS = 40, 41, 42, 43
 # the controller's and the motor's further settings, per axis (controller.hpp:23-56,
 # motor.hpp:18-50): the configured control mode (the kernel's I_MODE says whether the axis
 # is armed and how), the enable flags, ramps, circular setpoints, mirroring, tuning, the
@@ -46,20 +51,20 @@ INPUT_MODE_TUNING = 8      # 0.5.6 (not in fw-v0.5.1)
 (C_CONTROL_MODE, C_EN_VEL_LIMIT, C_EN_TQ_VEL_LIMIT, C_EN_OVERSPEED, C_EN_GAIN_SCHED, C_GAIN_SCHED_WIDTH,
  C_VEL_RAMP_RATE, C_TORQUE_RAMP_RATE, C_CIRCULAR, C_CIRC_RANGE, C_INERTIA, C_MIRROR_AXIS, C_MIRROR_RATIO,
  C_TORQUE_MIRROR_RATIO, C_TUNE_FREQ, C_TUNE_POS_AMP, C_TUNE_VEL_AMP, C_TUNE_TQ_AMP, C_TORQUE_LIM,
- C_CURRENT_LIM_MARGIN, C_CPR, C_MAX_CURRENT) = range(40, 62)
+ C_CURRENT_LIM_MARGIN, C_CPR, C_MAX_CURRENT) = range(44, 66)
 # the firmware's generation, a board slot on axis 0: 1 for 0.5.6 (the controller updates
 # every tick in every state and its failure is an axis error, main.cpp:438-446; the
 # setpoint clamps of controller.cpp:285-290), 0 for 0.5.1 (the controller runs only in
 # closed loop, fw-v0.5.1 axis.cpp:344-355)
-C_FW_056 = 62
+C_FW_056 = 66
 # the current controller's settings per axis: the configured phase resistance and
 # inductance its gains come from (motor.cpp:297-302), its feed-forwards (motor.cpp:567-586),
 # the motor's bus-current trip (motor.cpp:728-730)
-(C_PHASE_R, C_PHASE_L, C_BEMF_FF, C_RWL_FF, C_IBUS_MIN, C_IBUS_MAX) = range(63, 69)
+(C_PHASE_R, C_PHASE_L, C_BEMF_FF, C_RWL_FF, C_IBUS_MIN, C_IBUS_MAX) = range(67, 73)
 # the controller's spinout check (controller.cpp:422-441): the power filters' bandwidths
 # [rad/s] and the thresholds [W]
-(C_MECH_BW, C_ELEC_BW, C_SPIN_MECH, C_SPIN_ELEC) = range(69, 73)
-N_CFG = 73
+(C_MECH_BW, C_ELEC_BW, C_SPIN_MECH, C_SPIN_ELEC) = range(73, 77)
+N_CFG = 77
 # float state per axis: AS[b, axis, k]
 S_POS_EST, S_VEL_EST, S_INTEGRATOR, S_IQ, S_WD_TIMER, S_IQ_MEAS = range(6)
 S_OSC = 6           # N_OSC slots of the oscillation monitor (see oscillation_update)
@@ -106,8 +111,12 @@ MOTOR_ERROR_CURRENT_LIMIT_VIOLATION = 0x1000
 MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT = 0x4000      # 0.5.1: the bus faults land on the motors
 MOTOR_ERROR_DC_BUS_OVER_CURRENT = 0x8000
 MOTOR_ERROR_SYSTEM_LEVEL = 0x1000000                # 0.5.2+: motors disarmed by a board fault
-ODRIVE_ERROR_DC_BUS_OVER_CURRENT = 0x4              # 0.5.2+: odrv.error
+ODRIVE_ERROR_DC_BUS_UNDER_VOLTAGE = 0x2             # 0.5.2+: odrv.error (odrive-interface.yaml ODrive.Error)
+ODRIVE_ERROR_DC_BUS_OVER_VOLTAGE = 0x4
 ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT = 0x8
+ODRIVE_ERROR_DC_BUS_OVER_CURRENT = 0x10
+AXIS_ERROR_DC_BUS_UNDER_VOLTAGE = 0x2                # 0.5.1: the axes' own errors (fw-v0.5.1 axis.cpp:173-176)
+AXIS_ERROR_DC_BUS_OVER_VOLTAGE = 0x4
 CURRENT_LIM_MARGIN = 8.0  # A, firmware default motor.config.current_lim_margin
 # motor.cpp:312-330 Motor::setup: the largest current the shunt amplifier measures at the
 # gain requested_current_range asks for (its default 60 A gives gain 40, 0.9 * 1.35 V *

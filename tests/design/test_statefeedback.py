@@ -188,3 +188,26 @@ def test_scipys_convergence_note_is_checked_not_shown(leg, monkeypatch):
     monkeypatch.setattr(control, "place", off_place)
     with pytest.warns(UserWarning, match=r"Convergence was not reached.*off by 1\.0e-02 relative"):
         SF.place_poles(sys, SF.spread_poles(-7.0, 4, 0.5))
+
+
+def test_every_gain_has_the_unit_its_equation_gives_it(sys_thesis):
+    """K x̂ and Nbar r are torques, L (y - C x̂) a state's rate, Ki z a torque (z = ∫(y - r) dt),
+    A x and B u a state's rate: each entry's unit times what it multiplies is the unit of
+    what it makes; the table shows them."""
+    from leglib.units import Unit, significant
+    u = SF.gain_units()
+    states = [Unit.parse(s) for s in SF.STATE_UNITS.values()]
+    torque, angle, second = Unit.parse("N*m"), Unit.parse("rad"), Unit.parse("s")
+    assert all(Unit.parse(u["K"][i][j]) * states[j] == torque for i in range(2) for j in range(4))
+    assert u["K"][0] == ["N·m/rad", "N·m·s/rad", "N·m/rad", "N·m·s/rad"]
+    assert all(Unit.parse(u["L"][i][j]) * angle == states[i] / second for i in range(4) for j in range(2))
+    assert [row[0] for row in u["L"]] == ["1/s", "1/s²", "1/s", "1/s²"]
+    assert u["Nbar"][0][0] == "N·m/rad" and u["Ki"][0][0] == "N·m/(rad·s)"
+    mu = SF.model_units()
+    assert all(Unit.parse(mu["A"][i][j]) * states[j] == states[i] / second for i in range(4) for j in range(4))
+    assert all(Unit.parse(mu["B"][i][j]) * torque == states[i] / second for i in range(4) for j in range(2))
+    d = lg.place_poles(sys_thesis, integral_poles=SF.spread_poles(-4.0, 2))
+    md = d.gains_markdown()
+    assert "| | q1 [N·m/rad] | dq1 [N·m·s/rad] | q2 [N·m/rad] | dq2 [N·m·s/rad] |" in md
+    assert "| dq1 | " in md and " 1/s² |" in md and "**Ki**" in md
+    assert f"| tau1 | {significant(d.K[0, 0], 4)} | {significant(d.K[0, 1], 4)} |" in md

@@ -133,9 +133,10 @@ def test_a_second_calibrate_on_a_ready_board_does_not_move_the_leg(requests, mon
     assert second.axes == () and second.zeroing == "kept" and "did not move" in second.text
     assert _calibrations(requests) == []                                # no calibration state, and
     assert {s for _, s in requests} == {V.AXIS_STATE_IDLE}               # nothing but IDLE requested
-    assert (d.counts(0), d.counts(1)) == counts                       # the encoders did not move
-    # the leg only settled on (a leg resting within its friction dead band creeps by
-    # hundredths of a degree): no swing
+    # the encoders did not move beyond the creep: the leg only settled on (a leg resting within
+    # its friction dead band creeps by hundredths of a degree, a count of the motor's 4000 is
+    # 0.03 deg of joint: about a count a second here, as on a board left alone): no swing
+    assert all(abs(now - then) <= 1 for now, then in zip((d.counts(0), d.counts(1)), counts))
     assert moved[0] < math.radians(0.05)
     assert d.axes.zero == zero
     # force calibrates anyway: each encoder offset scan swings its link about 87 deg
@@ -278,7 +279,12 @@ def test_notebooks_02_to_05_on_one_board_configure_once_and_calibrate_once(usb, 
     configured, calibrated = zip(*sessions)
     assert [c.saved for c in configured] == [True] + [False] * 5
     assert [c.axes for c in calibrated] == [(0, 1)] + [()] * 5
-    assert [c.zeroing for c in calibrated] == ["calibration"] + ["kept"] * 5
+    # the zero kept, or set anew where the leg rests if it came to rest elsewhere (calibrate's
+    # 3 deg; after session 03's live loop the twin's leg rests 6 deg off in the whole leg's
+    # rotation, within its friction dead band, at the cited 0.36 ms per transaction): never
+    # a calibration again
+    assert calibrated[0].zeroing == "calibration"
+    assert {c.zeroing for c in calibrated[1:]} <= {"kept", "moved"}
     assert len(list_measurements(tmp_path / "sweep")) == 4            # a real leg's sweep: a file per point
     r = bench.report(m, serial=first.serial, clock=board.time)
     assert r.backend == "usb" and r.counts["save"] == 1 and r.counts["reboot"] == 1
@@ -291,8 +297,10 @@ def test_notebooks_02_to_05_on_one_board_configure_once_and_calibrate_once(usb, 
 
 def test_the_cost_model_agrees_with_the_twin_s_polled_runs():
     """Each cost beforehand (bench.*_seconds) against what the same operation takes on the
-    virtual board's clock on the polling path, as on the leg: within 1 %."""
-    d = lg.connect("virtual", seed=28)
+    virtual board's clock on the polling path, as on the leg: within 1 %. The cost model is
+    the mean: the board's transactions cost exactly that here (usb_jitter 0; their spread
+    and tail average out over a run, tests/device/test_firmware.py)."""
+    d = lg.connect("virtual", seed=28, plant=lg.load_plant("default", usb_jitter=0.0))
     lat = d.sim.twin.plant.usb_latency
 
     def took(f):

@@ -9,17 +9,16 @@ in the tree and on the wire with nothing else written.
 """
 
 import inspect
-import warnings
 
 import pytest
 
-from leglib.device.virtual import device_of, find_any, forget
+from leglib.device.virtual import catalog, device_of, find_any, forget
 from leglib.device.virtual import firmware as V
 from leglib.device.virtual import tree as T
 from leglib.device.virtual import wire as F
 from leglib.twin import layout as L
 
-INT_CODECS = {"int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64"}
+INT_CODECS = {"int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64", "endpoint_ref"}
 CODECS = {float: {"float"}, bool: {"bool"}, int: INT_CODECS}
 TABLES = sorted(F.FIRMWARE_TABLES)
 
@@ -31,6 +30,11 @@ def _fits(method: str, n: int) -> bool:
     except (AttributeError, TypeError):
         return False
     return True
+
+
+def all_rows(firmware: str) -> tuple:
+    """The device's rows on ``firmware``: its own and the catalog's."""
+    return tuple(V.ENDPOINTS) + catalog.fill(V.ENDPOINTS, firmware)
 
 
 def row_problems(rows, version: str) -> list[str]:
@@ -46,7 +50,7 @@ def row_problems(rows, version: str) -> list[str]:
         if row.function:
             if entry["type"] != "function":
                 problems.append(f"{path}: a {entry['type']} property on {version}, the row is a function")
-            elif not _fits(row.store.method, n_axis + len(entry["inputs"])):
+            elif not _fits(row.store.method, n_axis + len(row.store.bound) + len(entry["inputs"])):
                 problems.append(f"{path}: {row.store.method} does not take the table's "
                                 f"{len(entry['inputs'])} argument(s)")
             continue
@@ -59,18 +63,33 @@ def row_problems(rows, version: str) -> list[str]:
             problems.append(f"{path}: read-only on {version}, the row takes writes")
         if row.setter is not None and not _fits(row.setter, n_axis + 1):
             problems.append(f"{path}: setter {row.setter} does not take (axis, value)")
-        if isinstance(row.store, T.Get) and not _fits(row.store.method, n_axis):
+        if isinstance(row.store, T.Get) and not _fits(row.store.method, n_axis + len(row.store.args)):
             problems.append(f"{path}: getter {row.store.method} does not take the axis")
     return problems
 
 
 @pytest.mark.parametrize("version", TABLES)
 def test_every_row_is_an_endpoint_of_the_firmwares_table(version):
-    """Each row marked for ``version`` names an endpoint of that version's table, with a
-    compatible type (float / bool / an integer codec / a function taking the table's
-    arguments), writable only where the firmware's is, and names device methods that
-    exist with the right arguments."""
+    """Each row marked for ``version`` -- the model's own and the catalog's -- names an
+    endpoint of that version's table, with a compatible type (float / bool / an integer
+    codec / a function taking the table's arguments), writable only where the firmware's
+    is, and names device methods that exist with the right arguments."""
     assert row_problems(V.ENDPOINTS, version) == []
+    assert row_problems(all_rows(version), version) == []
+
+
+@pytest.mark.parametrize("version", TABLES)
+def test_every_endpoint_of_the_table_has_a_row(version):
+    """The whole tree: every endpoint of the firmware's table (but its version numbers,
+    answered from the table) has a row, and every catalog row comes from a rule (none
+    falls to the strict default)."""
+    flat = F.flatten(F.endpoint_table(version))
+    paths = T.model_paths(all_rows(version), version)
+    identity = {"fw_version_major", "fw_version_minor", "fw_version_revision", "fw_version_unreleased"}
+    assert set(paths) <= set(flat) and set(flat) - set(paths) <= identity
+    kinds = catalog.disposition(version)
+    assert "strict" not in kinds, kinds.get("strict")
+    assert F.endpoint_coverage(firmware=version)["unmodeled"] == []
 
 
 def test_every_row_is_checked_against_a_table():
@@ -128,7 +147,7 @@ def test_the_tree_is_the_table(firmware):
     a property or a method as the row says; the firmware versions differ where the rows do
     (fw-v0.5.1: clear_errors per axis, no odrv.error, no enable_brake_resistor)."""
     dev = V.VirtualODrive(firmware=firmware)
-    paths = T.model_paths(V.ENDPOINTS, firmware)
+    paths = T.model_paths(all_rows(firmware), firmware)
     assert set(dev._leaves) == set(paths)
     for path, (_, row) in paths.items():
         node = dev._tree
@@ -155,15 +174,15 @@ EXTRA = (
 
 
 def test_a_new_row_appears_in_the_tree_and_on_the_wire(monkeypatch):
-    """Adding rows is all it takes: the endpoints are in the model's tree (read, written,
-    checked, one transaction each) and the wire answers them from the model instead of
-    holding a default (no UnmodeledEndpointWarning on a write)."""
+    """Adding rows is all it takes: a model row replaces the catalog's for its endpoint
+    (read, written, checked, one transaction each, in the tree and on the wire)."""
     assert all(row_problems(EXTRA, v) == [] for v in TABLES)
     before = F.endpoint_coverage(firmware="0.5.6")["model"]
+    old = V.VirtualODrive(seed=131)._leaves["axis0.motor.I_bus"].row
+    assert old.path == "axis*.motor.I_bus" and old not in EXTRA          # the catalog's
     monkeypatch.setattr(V.VirtualODrive, "endpoints", V.ENDPOINTS + EXTRA)
-    assert F.endpoint_coverage(firmware="0.5.6")["model"] == sorted(
-        before + ["axis0.motor.I_bus", "axis0.motor.config.acim_autoflux_attack_gain",
-                  "axis1.motor.I_bus", "axis1.motor.config.acim_autoflux_attack_gain"])
+    assert F.endpoint_coverage(firmware="0.5.6")["model"] == before      # the same endpoints ...
+    assert V.VirtualODrive(seed=131)._leaves["axis0.motor.I_bus"].row in EXTRA   # ... from the new rows
     assert "axis0.motor.current_control.Ibus" in F.endpoint_coverage(firmware="0.5.1")["model"]
     # the model's tree
     sim = V.VirtualODrive(seed=132)
@@ -189,9 +208,7 @@ def test_a_new_row_appears_in_the_tree_and_on_the_wire(monkeypatch):
         t0 = model.transactions
         assert odrv.axis1.motor.I_bus == float(model.st.AS[0, 1, L.S_IBUS_MOTOR])
         assert model.transactions == t0 + 1     # one transaction
-        with warnings.catch_warnings():
-            warnings.simplefilter("error", F.UnmodeledEndpointWarning)
-            odrv.axis1.motor.config.acim_autoflux_attack_gain = 2.5
+        odrv.axis1.motor.config.acim_autoflux_attack_gain = 2.5
         assert model.st.C[0, 1, L.C_INT_RESET_TORQUE] == 2.5
         assert odrv.axis1.motor.config.acim_autoflux_attack_gain == 2.5
         with pytest.raises(ValueError, match="must be positive"):

@@ -7,7 +7,10 @@ and ``time.time()`` see the leg move in real time), ``input()`` answers Enter, L
 7.4's grid is shortened, and Listing 7.3 reads a torque table made here (the thesis's came
 from Simulink). Listings 7.1 and 7.2 are odrivetool console sessions: they run
 statement by statement in a namespace like odrivetool's (``odrv0``, ``odrive.enums``,
-``odrive.utils``), where an exception ends only its statement, as at the console.
+``odrive.utils``), where an exception ends only its statement, as at the console. Before a
+script, its set-up at the console (7.1, and 7.2's calibration with the wait for it) runs on
+the device's own clock, which nothing there reads; the script then finds the device in real
+time.
 
 Transcription notes. The text layer of the thesis's PDF breaks long lines (joined here) and
 spells Listing 7.4's offset variables ``positionS10offset`` (line 42) but
@@ -26,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from leglib.device.virtual import find_any
+from leglib.device.virtual import device_of, find_any
 from leglib.files.measurements import read_measurement, read_table
 
 odrive = pytest.importorskip("odrive")
@@ -290,10 +293,11 @@ JOINT_STEP_DEG = 0.4 * 360 / 3  # a 0.4-turn motor step through the 1:3 belt: 48
 
 @pytest.fixture
 def thesis_odrive(monkeypatch):
-    """``odrive.find_any`` replaced by the virtual ODrive in real time; ``input`` answers Enter."""
-    def use(seed, firmware="0.5.6"):
+    """``odrive.find_any`` replaced by the virtual ODrive in real time (or on its own clock,
+    ``realtime=False``); ``input`` answers Enter."""
+    def use(seed, firmware="0.5.6", realtime=True):
         monkeypatch.setattr(odrive, "find_any", functools.partial(find_any, seed=seed, firmware=firmware,
-                                                                  realtime=True))
+                                                                  realtime=realtime))
         monkeypatch.setattr(builtins, "input", lambda prompt="": "")
     return use
 
@@ -327,12 +331,13 @@ def run_console(source: str, ns: dict) -> list:
 
 
 def wait_at_console(ns, seconds_max=30.0):
-    """The user at the console waits until both axes are back in IDLE (calibration done)."""
-    import time
+    """The user at the console waits until both axes are back in IDLE (calibration done),
+    looking every 0.5 s of the device's time: the wall clock's on a device in real time."""
     odrv0 = ns["odrv0"]
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < seconds_max:
-        time.sleep(0.5)
+    sim = device_of(odrv0)
+    t0 = sim.time
+    while sim.time - t0 < seconds_max:
+        sim.sleep(0.5)
         if odrv0.axis0.current_state == 1 and odrv0.axis1.current_state == 1:
             return
     raise AssertionError(f"calibration did not finish within {seconds_max} s")
@@ -378,16 +383,23 @@ def test_listing_71_save_reboots_on_056(thesis_odrive):
 
 
 def _configured_and_calibrated(thesis_odrive, seed, firmware="0.5.6"):
-    """Listing 7.1, then Listing 7.2's calibration at the console; returns the console."""
-    thesis_odrive(seed, firmware)
+    """Listing 7.1, then Listing 7.2's calibration at the console; returns the console, its
+    device in real time from then on. The console session and the wait for the calibration
+    (about 20 s of the device's time) run on the device's own clock: nothing in them reads
+    the host's clock, and the scripts that follow find the device in real time."""
+    thesis_odrive(seed, firmware, realtime=False)
     ns = odrivetool_console()
     run_console(LISTING_7_1, ns)                  # 0.5.6 may reset here: find it again
     ns = odrivetool_console()
     assert run_console(LISTING_7_2_CALIBRATION, ns) == []
     wait_at_console(ns)
+    thesis_odrive(seed, firmware)                 # find_any(realtime=True) from here on,
+    ns["odrv0"] = odrive.find_any()               # which paces the device it finds again
+    assert device_of(ns["odrv0"]).realtime
     return ns
 
 
+@pytest.mark.slow
 def test_listing_72_calibration_then_velocity(thesis_odrive):
     """Listing 7.2 at the console after 7.1: the calibration (states 4 -> 7 -> 1;
     fw-v0.5.6 axis.cpp:472-479) finishes without error with the configured cpr and pole
@@ -445,6 +457,7 @@ def _run_listing_74(thesis_odrive, tmp_path, monkeypatch, seed, firmware):
     return steps, odrv0
 
 
+@pytest.mark.slow
 def test_listing_74_on_051_steps_at_every_point(thesis_odrive, tmp_path, monkeypatch):
     """Listing 7.4 as printed on fw-v0.5.1: its controller runs only in closed loop
     (fw-v0.5.1 axis.cpp:344-355), so the leg falling back after each step while IDLE (faster
@@ -463,6 +476,7 @@ def test_listing_74_on_051_steps_at_every_point(thesis_odrive, tmp_path, monkeyp
     assert odrv0.axis0.error == 0 and odrv0.axis1.error == 0
 
 
+@pytest.mark.slow
 def test_listing_74_as_printed_trips_overspeed_on_056(thesis_odrive, tmp_path, monkeypatch):
     """Listing 7.4 as printed on fw-v0.5.6, as on a real board: the main loop updates the
     controller every tick in every state (main.cpp:438-446), and once the first closed loop
@@ -485,6 +499,7 @@ def test_listing_74_as_printed_trips_overspeed_on_056(thesis_odrive, tmp_path, m
         assert ax.motor.error & MOTOR_ERROR_UNKNOWN_TORQUE
 
 
+@pytest.mark.slow
 def test_listing_73_torque_table(thesis_odrive, tmp_path, monkeypatch):
     """Listing 7.3 as a script after 7.1 and 7.2's calibration: a torque table (here a
     0.01 N m, 1 Hz sine on axis1, zero on axis0, 2 ms rows) played in torque control; the

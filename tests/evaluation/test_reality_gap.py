@@ -49,13 +49,18 @@ def test_effects_off_give_the_numbers_of_the_kernel_without_them():
     an independent-inertia batch, a device's calibration and step). A deliberate change of
     the kernel's arithmetic must renew them; so must a change of the transactions a
     device's calibration makes (the step starts at that device time: the calibration under
-    the watchdog, fed every poll, renewed the last one; the kernel's two did not change).
-    The device's final counts changed once more when the encoder offset calibration stopped
-    shifting them by whole turns (encoder.cpp:344 is undone by the incremental update,
-    encoder.cpp:480,657-662,762): the same motion, counted in the boot frame. The steps'
-    numbers changed when the current loop became the firmware's PI on the motor's R, L and
-    back-EMF with the PWM's half-period delay (foc.cpp:131-154, board.cpp:543-563) instead of
-    a first-order lag: the same steps to within a few counts (tests/twin)."""
+    the watchdog, fed every poll, renewed the last one; the kernel's two did not change;
+    issue 24's USB cost -- 0.36 ms mean with the client's measured spread -- and the axis
+    thread's procedures renewed it again). The device's final counts changed once more when
+    the encoder offset calibration stopped shifting them by whole turns (encoder.cpp:344 is
+    undone by the incremental update, encoder.cpp:480,657-662,762): the same motion, counted
+    in the boot frame. The steps' numbers changed when the current loop became the
+    firmware's PI on the motor's R, L and back-EMF with the PWM's half-period delay
+    (foc.cpp:131-154, board.cpp:543-563) instead of a first-order lag: the same steps to
+    within a few counts (tests/twin). Both changed again when that controller met the axis
+    thread's procedures: the step starts at the procedures' device time, and the PI's gains
+    come from the calibration's measured R and L (motor.cpp:297-302), not the motor's own
+    (one count of difference in this step)."""
     plant = load_plant("default")
     assert plant.unmodeled == ()
     assert np.all(Twin(plant).FR[14:] == 0.0)
@@ -67,8 +72,8 @@ def test_effects_off_give_the_numbers_of_the_kernel_without_them():
     lg.configure(d)
     lg.calibrate(d)
     s = lg.step_response(d, 40, 0.08, 0.01)
-    assert _fp(np.round(np.degrees(s.q1) * 1e6)) == "b0b61be691876463"
-    assert _fp(d.sim.st.AI[0, :, L.I_COUNTS]) == "e6a5c3146882cc52"
+    assert _fp(np.round(np.degrees(s.q1) * 1e6)) == "1c30a583f804afa5"
+    assert _fp(d.sim.st.AI[0, :, L.I_COUNTS]) == "7cd775fc25e715c0"
 
 
 @pytest.mark.parametrize("name", MISMATCHED)
@@ -473,6 +478,7 @@ def test_drift_carries_over_on_a_device_not_between_batch_points():
 
 # -- the procedure on every plant ------------------------------------------------------------
 
+@pytest.mark.slow
 @pytest.mark.parametrize("payload", [0.0, 0.3])
 @pytest.mark.parametrize("name", MISMATCHED)
 def test_calibration_and_steps_work_on_seeds_0_to_9(name, payload):
@@ -496,6 +502,7 @@ def test_calibration_and_steps_work_on_seeds_0_to_9(name, payload):
             assert identify_response(r, dev.leg).status == "ok", (name, seed)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", MISMATCHED)
 def test_the_thesis_grid_runs_and_moderate_gains_are_second_order_steps(name):
     dev = lg.connect("virtual", plant=name, seed=1)

@@ -152,6 +152,7 @@ def _count(dev, operation):
     return dev.sim.transactions - n0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("operation", sorted(OPERATIONS))
 def test_a_link_lost_at_any_transaction_leaves_both_axes_idle(dev, operation):
     run = OPERATIONS[operation]

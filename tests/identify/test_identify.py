@@ -140,6 +140,7 @@ def twin_run():
     return dev, lg.friction_experiment(dev)
 
 
+@pytest.mark.slow
 def test_leg_friction_recovers_the_twins_truth_within_5_percent(twin_run):
     """Coulomb, inertia and mass within 5 % of the twin's truth, viscous within 12 %: the
     twin's current loop is the firmware's PI acting on the measured current (foc.cpp:131-154),
@@ -165,6 +166,7 @@ def test_leg_friction_recovers_the_twins_truth_within_5_percent(twin_run):
     assert rms_nom > 20 * f.rms_deg[0]
 
 
+@pytest.mark.slow
 def test_torque_run_file_round_trip(twin_run, tmp_path):
     _, run = twin_run
     back = TorqueRun.read(run.write(tmp_path))
@@ -324,3 +326,13 @@ def test_a_value_on_its_bound_is_not_identified():
         else:
             assert getattr(f, name) > 1e-6 * 0.03
     assert "coulomb_pos" in f.not_identifiable or "coulomb_neg" in f.not_identifiable
+
+
+def test_a_signed_parameters_interval_is_not_clipped_at_zero():
+    """A friction level's interval stops at 0 (its bound); an initial velocity or a cross
+    damping may be negative: its interval is value -+ 1.645 se (it once read [0, -1.56] for
+    dq2_0 = -1.56)."""
+    from leglib.identify.friction import Z90, _interval90
+    lo, hi = _interval90(-1.5616, 0.0003, low=-20.0)
+    assert lo < -1.5616 < hi < 0 and hi - lo == pytest.approx(2 * Z90 * 0.0003)
+    assert _interval90(0.001, 0.002)[0] == 0.0          # a level: not below its bound

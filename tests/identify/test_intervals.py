@@ -10,6 +10,7 @@ from leglib.design.plantfit import twin_step_responses
 from leglib.identify.fastfit import model
 from leglib.identify.step import LEVEL, FitIntervals, fit_intervals, identify_batch, second_order
 from leglib.twin.host import Twin
+from leglib.units import decimals, interval_text
 
 # three gain points: Fig. 6.9's gains (zeta about 0.37), a well damped one (zeta about 0.78)
 # and one the second-order model describes only approximately (R^2 0.987, zeta about 0.31)
@@ -84,6 +85,9 @@ def test_fd_interval_is_nan_past_critical_damping_and_text_shows_the_interval():
     f = second_order(t, y)
     iv = fit_intervals(f, t, y)
     assert f.intervals is iv and all(math.isnan(x) for x in iv.fd)
-    assert iv.text("zeta", f.zeta, 2).startswith(f"{f.zeta:.2f} [")
+    # to the decimal the interval's half-width supports (leglib.units.interval_text)
+    lo, hi = iv.zeta
+    assert iv.text("zeta", f.zeta) == interval_text(f.zeta, (lo, hi))
+    assert iv.text("zeta", f.zeta).startswith(f"{f.zeta:.{decimals((hi - lo) / 2)}f} [")
     with pytest.raises(ValueError, match="level"):
         fit_intervals(f, t, y, level=1.5)

@@ -1,8 +1,13 @@
 """The committed generated kernels are what the sympy derivation produces today."""
 
+import pytest
 import sympy as sp
 
 from leglib.model import derivation
+
+# one worker derives the models once (derive_* keep their result in the process: about 10 s
+# of sympy) for all the tests of this file
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("derivation")]
 
 
 def test_generated_module_is_up_to_date():

@@ -65,6 +65,7 @@ def test_short_runs_and_bad_input(leg):
     plt.close("all")
 
 
+@pytest.mark.slow
 def test_exports_without_ffmpeg(leg, tmp_path):
     q1, q2, t = _motion(leg)
     anim = plots.animate_leg(leg, q1, q2, t, max_frames=30, setpoint=(leg.q1, leg.q2), title="test")

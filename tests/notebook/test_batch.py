@@ -262,6 +262,7 @@ def test_a_batch_whose_workers_all_die_ends_with_the_runs_pending(tmp_path, monk
         assert json.loads((root / run_id / "status.json").read_text())["status"] == "pending"
 
 
+@pytest.mark.slow
 def test_a_killed_worker_fails_its_run_only(tmp_path, monkeypatch):
     """A run whose worker died more often than the scheduler allows (KilledWorker) is
     recorded failed with the reason; the run on the healthy worker is recorded done; the

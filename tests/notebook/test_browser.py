@@ -221,10 +221,12 @@ def _run_all(page, lab, prefix: str) -> dict:
     return json.loads(metrics_path.read_text())
 
 
-def _move_slider(page, panel, label: str, expected_value: str, expected_readout: str, name: str):
+def _move_slider(page, panel, label: str, expected_value: str, expected_readout, name: str,
+                 initial_readout: str = "", check_moved=None):
     """Focus the slider called ``label`` in ``panel``, press ArrowRight once, and wait for the
-    slider to show ``expected_value``, the readout to show ``expected_readout`` exactly and
-    the plot to be redrawn. Screenshots before and after."""
+    slider to show ``expected_value``, the readout to show ``expected_readout`` exactly (or,
+    when it is None, to change from ``initial_readout``) and the plot to be redrawn; then
+    ``check_moved(readout text)`` when given. Screenshots before and after."""
     from playwright.sync_api import expect
 
     slider = panel.locator(".widget-slider", has=page.locator(".widget-label", has_text=label)).first
@@ -237,8 +239,14 @@ def _move_slider(page, panel, label: str, expected_value: str, expected_readout:
     # the slider formats with d3-format, which writes a minus as U+2212
     expect(slider.locator(".widget-readout")).to_have_text(expected_value.replace("-", "\u2212"),
                                                            timeout=30_000)
-    expect(panel.locator("code.leglib-readout")).to_have_text(expected_readout, timeout=120_000)
+    readout = panel.locator("code.leglib-readout")
+    if expected_readout is not None:
+        expect(readout).to_have_text(expected_readout, timeout=120_000)
+    else:
+        expect(readout).not_to_have_text(initial_readout, timeout=120_000)
     page.wait_for_function(_IMG_CHANGED, arg=[panel.element_handle(), before], timeout=60_000)
+    if check_moved is not None:
+        check_moved(readout.inner_text())
     after = plot.get_attribute("src")
     _screenshot(page, f"{name}_after", panel)
     return before, after
@@ -283,11 +291,12 @@ def _panel(page):
     return panel
 
 
-def _slider_session(browser, lab, prefix: str, label: str, value_text: str, expected) -> dict:
+def _slider_session(browser, lab, prefix: str, label: str, value_text: str, expected, check_moved=None) -> dict:
     """Run All in notebook ``prefix``; check the panel's readout shows ``initial``; move the
     slider ``label`` one step to ``value_text``; the readout must become ``moved`` and the
     plot must be redrawn. ``expected()`` gives ``(initial, moved)``, called once the notebook
-    has run. Returns the notebook's metrics."""
+    has run; ``moved`` None: the readout must change, and ``check_moved(its text)`` judges it.
+    Returns the notebook's metrics."""
     from playwright.sync_api import expect
 
     nb = _notebook(prefix)
@@ -297,7 +306,8 @@ def _slider_session(browser, lab, prefix: str, label: str, value_text: str, expe
         initial, moved = expected()
         panel = _panel(page)
         expect(panel.locator("code.leglib-readout")).to_have_text(initial, timeout=30_000)
-        before, after = _move_slider(page, panel, label, value_text, moved, f"{prefix}_{label.replace(' ', '_')}")
+        before, after = _move_slider(page, panel, label, value_text, moved, f"{prefix}_{label.replace(' ', '_')}",
+                                     initial, check_moved)
         assert before != after and after.startswith("data:image/png")
         # then the time from a slider's release to the redrawn figure, several moves
         times = _time_moves(page, panel, label)
@@ -330,68 +340,58 @@ def test_pole_slider_in_notebook_03(lab, browser):
     assert metrics["eig_K_max_rel_error"] < 1e-6  # the notebook computed sensible things
 
 
-# Notebook 04's device history before its panel: the twin lives for the kernel's process under
-# its seed and its noise goes on from one session to the next, as a real ODrive's does; so the
-# panel's steps depend on what the notebook ran before it (the sweep, the design's step). The
-# replay runs that history in a process of its own, beside the page's Run All.
-_REPLAY_04 = """
-import json, sys
-import numpy as np
-import leglib as lg
-from leglib.design import saved as designs
-from leglib.notebook import widgets
-from leglib.notebook.setup import device_options
-from leglib.params import load_leg
+def _kernel_eval(lab, name: str, expression: str):
+    """The value of the JSON-able ``expression`` evaluated in the kernel of the page's notebook
+    ``name`` (a second client of the same kernel, through its connection file)."""
+    from jupyter_client import BlockingKernelClient
 
-a = json.loads(sys.argv[1])
-leg = load_leg(a["leg_name"])
-options = device_options("virtual", a["seed"], a["plant"], a["payload_mass"])
-grid = np.array([(p, v, i) for p in np.linspace(a["pos_min"], a["pos_max"], a["pos_n"])
-                 for v in np.linspace(a["vel_min"], a["vel_max"], a["vel_n"])
-                 for i in np.linspace(a["vint_min"], a["vint_max"], a["vint_n"])])
-with lg.connect("virtual", leg=leg, **options) as odrv:
-    lg.configure(odrv); lg.calibrate(odrv); lg.sweep(odrv, grid, a["sweep_dir"], progress=False)
-gm = lg.GainMap.from_measurements(a["sweep_dir"], leg=leg)
-start = designs.gain_design_from_map(gm, 0.24, 5.0, sweep_dir=a["sweep_dir"])
-with lg.connect("virtual", leg=leg, **options) as odrv:
-    lg.configure(odrv); lg.calibrate(odrv); lg.step_response(odrv, *start.gains)
-readouts = []
-with lg.connect("virtual", leg=leg, **options) as dev:
-    lg.configure(dev); lg.calibrate(dev)
-    for gains in a["gains"]:
-        readouts.append(widgets.step_readout(lg.step_response(dev, **gains), leg=dev.leg))
-print(json.dumps(readouts))
-"""
+    kernel = next(s["kernel"] for s in _api(lab, "sessions") if s.get("path") == name)
+    client = BlockingKernelClient(connection_file=str(lab["root"] / ".jupyter" / "runtime" / f"kernel-{kernel['id']}.json"))
+    client.load_connection_file()
+    client.start_channels()
+    try:
+        out = []
+        reply = client.execute_interactive(f"import json as _json; print(_json.dumps({expression}))", timeout=120,
+                                           output_hook=lambda m: out.append(m["content"].get("text", "")
+                                                                            if m["msg_type"] == "stream" else ""))
+        assert reply["content"]["status"] == "ok", reply["content"]
+        return json.loads("".join(out).strip().splitlines()[-1])
+    finally:
+        client.stop_channels()
+
 
 # notebook 04's smoke grid (its check_parameters(smoke=...)); the notebook's metrics must agree
 _SMOKE_04 = {"pos_n": 2, "vel_n": 4, "vint_n": 4}
+# in notebook 04's kernel: the text leglib computes for the step the panel shows, and its gains
+_SHOWN_04 = "[widgets.step_readout(gain_panel.last_step, leg=leg), list(gain_panel.last_step.gains)]"
 
 
-def test_gain_slider_in_notebook_04(lab, browser, tmp_path):
-    # the panel's device after the notebook's history; one step with the panel's initial
-    # gains, then one with pos_gain one slider step up
-    d = {**_defaults(_notebook("04")), **_SMOKE_04}
+def test_gain_slider_in_notebook_04(lab, browser):
+    """The panel's readout is exactly leglib's text for the step it ran, before and after
+    pos_gain moves one slider step, and that step ran with the moved gains. (The step itself
+    depends on the device's whole history in the kernel -- the sweep, the design's step, the
+    twin's noise going on from session to session as a real board's does -- so the text is
+    computed from the step the kernel holds, not from a replay.)"""
     gains = _panel_defaults(widgets.gain_step_panel)
     gains.pop("gm")
-    moved_gains = {**gains, "pos_gain": gains["pos_gain"] + 1.0}
-    args = {k: d[k] for k in ("leg_name", "seed", "plant", "payload_mass", "pos_min", "pos_max", "pos_n",
-                              "vel_min", "vel_max", "vel_n", "vint_min", "vint_max", "vint_n")}
-    args.update(sweep_dir=str(tmp_path / "sweep"), gains=[gains, moved_gains])
-    replay = subprocess.Popen([sys.executable, "-c", _REPLAY_04, json.dumps(args)], cwd=REPO,
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    initial_gains = [gains["pos_gain"], gains["vel_gain"], gains["vel_integrator_gain"]]
+    moved_gains = [initial_gains[0] + 1.0, *initial_gains[1:]]
+    name = _notebook("04").name
+    state = {}
 
     def expected():
-        out, err = replay.communicate(timeout=600)
-        assert replay.returncode == 0, f"the replay of notebook 04's device history failed:\n{err[-3000:]}"
-        initial, moved = json.loads(out.strip().splitlines()[-1])
-        assert initial.startswith("zeta = ") and moved.startswith("zeta = ") and initial != moved
-        return initial, moved
+        initial, at = _kernel_eval(lab, name, _SHOWN_04)
+        assert initial.startswith("zeta = ") and at == pytest.approx(initial_gains, rel=1e-12)
+        state["initial"] = initial
+        return initial, None
 
-    try:
-        metrics = _slider_session(browser, lab, "04", "pos_gain", f"{moved_gains['pos_gain']:.0f}", expected)
-    finally:
-        if replay.poll() is None:
-            replay.kill()
+    def check_moved(shown: str):
+        text, at = _kernel_eval(lab, name, _SHOWN_04)
+        assert at == pytest.approx(moved_gains, rel=1e-12), "the panel's step did not run at the moved gains"
+        assert text.startswith("zeta = ") and text != state["initial"]
+        assert shown == text
+
+    metrics = _slider_session(browser, lab, "04", "pos_gain", f"{moved_gains[0]:.0f}", expected, check_moved)
     assert metrics["points"] == _SMOKE_04["pos_n"] * _SMOKE_04["vel_n"] * _SMOKE_04["vint_n"]
 
 
@@ -468,13 +468,17 @@ def test_live_view_redraws_while_a_run_plays(lab, browser):
 
 def test_live_view_redraws_during_a_realtime_step(lab, browser):
     """A 3 s step on the twin paced to the wall clock (realtime=True) with the view's
-    on_sample: the picture changes while the step runs, and the step keeps its 2 ms period."""
+    on_sample: the picture changes while the step runs, and the step keeps its 2 ms period.
+    (The device is configured and calibrated first on virtual time, about 20 s of device
+    time, then connected again in real time: the step is what the view watches.)"""
     result = lab["root"] / "live_step.json"
     path = _live_notebook(lab, "live_step.ipynb", (
         "import leglib as lg\n"
-        "with lg.connect('virtual', seed=1, realtime=True) as dev:\n"
+        "with lg.connect('virtual', seed=1) as dev:\n"
         "    lg.configure(dev)\n"
         "    lg.calibrate(dev)\n"
+        "with lg.connect('virtual', seed=1, realtime=True) as dev:\n"
+        "    assert dev.sim.realtime\n"
         "    view.clear()\n"
         "    r = lg.step_response(dev, 50, 0.046, 0.001, duration=3.0, on_sample=view.on_sample)\n"
         "import numpy as np\n"

@@ -82,6 +82,7 @@ def test_batch_reports_a_bad_scheduler_in_one_line(tmp_path, capsys, address, me
     assert not (out / "x").exists()  # nothing ran
 
 
+@pytest.mark.slow
 def test_an_unreachable_scheduler_from_the_shell(tmp_path):
     """The whole command: one line on stderr, exit code 2, nothing complaining at exit."""
     spec = tmp_path / "s.toml"
@@ -191,5 +192,7 @@ def test_design_on_the_leg_runs_within_its_limit(twin_on_usb, capsys):
     out = capsys.readouterr().out
     assert code in (0, 1)
     assert out.startswith("on the leg: the configuration saved (1 reboot), 2 axes calibrated, 2 steps: about ")
-    assert "configure: 6 stored value(s) differ" in out and "calibrate: axis0 and axis1 calibrated" in out
+    # a fresh board has the firmware's defaults: pole_pairs, cpr and torque_constant (motor.hpp:19,24,
+    # encoder.hpp:27) on both axes, brake_resistance (board.h:41) and enable_brake_resistor differ
+    assert "configure: 8 stored value(s) differ" in out and "calibrate: axis0 and axis1 calibrated" in out
     assert "On the leg: 1 configuration saved, 1 reboot, 2 axes calibrated, " in out

@@ -65,7 +65,8 @@ def test_05_leads_with_the_thesis_measure_result_and_quotes_intervals():
     text = findings.render("05_validation", m)
     first = text.splitlines()[0]
     assert "does not reproduce the thesis" in first and "0.046" in first and "0.229" in first
-    assert "[0.162, 0.323]" in text and "interval" in text
+    # zeta to the digits its interval supports (half-width 0.08: two decimals), not 0.242 [0.162, 0.323]
+    assert "zeta 0.24 [0.16, 0.32], fn 5.0 [4.5, 5.6] Hz" in text and "interval" in text
     assert findings.unquoted(text, m) == []
     m["thesis_measure"]["reached"] = True
     assert "reaches the thesis's target" in findings.render("05_validation", m).splitlines()[0]

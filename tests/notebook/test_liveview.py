@@ -27,6 +27,7 @@ def _fake_experiment(run, on_sample, setpoint, out):
     out.update(liveview.replay(run, on_sample, setpoint=setpoint))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("renderer", ["process", "thread"])
 def test_samples_at_500_hz_are_buffered_exactly_and_drawn_while_running(leg, renderer):
     run = _run(leg)

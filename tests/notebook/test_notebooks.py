@@ -11,7 +11,7 @@ import pytest
 from leglib import model as M
 from leglib.design import saved as designs
 from leglib.design import statefeedback as SF
-from leglib.notebook import findings, widgets
+from leglib.notebook import findings, offline, widgets
 from leglib.notebook import run as notebooks
 from leglib.notebook.run import count_figures, execute, notebook_paths
 
@@ -81,6 +81,8 @@ def assert_report_has_figures(out_dir, stem, html=True):
     if html:
         page = (out_dir / f"{stem}.html").read_text()
         assert page.count("data:image/png;base64") >= n, f"{stem}: the HTML lacks figures"
+        # every table rendered: none left as a paragraph of pipes (offline.unrendered_tables)
+        assert offline.unrendered_tables(page) == [], offline.unrendered_tables(page)
 
 
 def _check_animations(executed, count: int, max_bytes: int = 3_000_000):
@@ -97,7 +99,8 @@ def _run(path, tmp_path, **params):
     execute(path, tmp_path, {"smoke": True, **params}, html=True)
     assert_report_has_figures(tmp_path, path.stem)
     metrics = json.loads((tmp_path / "metrics" / f"{path.stem}.json").read_text())
-    # every figure the notebook saved reads: no text over another (leglib.plots.text_overlaps)
+    # every figure the notebook saved reads: no text over another, no legend on data
+    # (leglib.plots.text_overlaps, legends_on_data)
     assert metrics["figure_text_overlaps"] == {}, metrics["figure_text_overlaps"]
     return metrics
 
@@ -231,11 +234,15 @@ def test_03_pole_placement(processed, tmp_path):
     assert m["bench"]["counts"]["torque"] == 4 and m["bench"]["counts"]["hold"] == 2
 
 
+def _run_notebook_04(out):
+    _run(NOTEBOOKS[3], out, sweep_dir=str(out / "sweep"), processed_dir=str(out / "processed"))
+
+
 @pytest.fixture(scope="module")
-def sweep04(tmp_path_factory):
-    out = tmp_path_factory.mktemp("nb04")
-    m = _run(NOTEBOOKS[3], out, sweep_dir=str(out / "sweep"), processed_dir=str(out / "processed"))
-    return out, m
+def sweep04(shared):
+    """Notebook 04 run once for the session (tests 04 and 05 may run on two workers)."""
+    out = shared("nb04", _run_notebook_04)
+    return out, json.loads((out / "metrics" / f"{NOTEBOOKS[3].stem}.json").read_text())
 
 
 @pytest.mark.notebook
@@ -309,13 +316,28 @@ def test_05_validation(sweep04, tmp_path):
 @pytest.mark.notebook
 def test_03_starts_from_a_saved_design(processed, tmp_path):
     """With design_file the notebook uses the saved design, not its poles parameter."""
+    import subprocess
+
     from leglib.params import load_leg
     saved = SF.place_poles(M.linearize(load_leg("thesis")), (-9.0, -9.007, -9.014, -9.021), 5.0)
     path = designs.save(tmp_path / "start.json", saved, linearization={"leg": "thesis"})
+    # made, as it says, by the repository's first commit: older than the code it depends on
+    first = subprocess.run(["git", "rev-list", "--max-parents=0", "HEAD"], capture_output=True, text=True,
+                           cwd=NOTEBOOKS[0].parent).stdout.split()
+    doc = json.loads(path.read_text())
+    doc["provenance"]["git_commit"] = first[0] if first else "unknown"
+    path.write_text(json.dumps(doc))
     out02, _ = processed
     m = _run(NOTEBOOKS[2], tmp_path, identified_path=str(out02 / "processed" / "friction_identified.json"),
              processed_dir=str(tmp_path / "processed"), design_file=str(path))
     assert m["readout"] == widgets.design_readout(saved)
+    # the inputs read from files say where they came from; the old design shows its notice
+    ident, design = m["inputs"]["identified_path"], m["inputs"]["design_file"]
+    assert ident["notice"] is None and ident["commits"]            # 02 ran on this very code
+    assert design["notice"] and (design["stale"] or not first)     # "Made by an older version: ..."
+    shown = "".join(o.get("data", {}).get("text/markdown", "") for c in
+                    nbformat.read(str(tmp_path / NOTEBOOKS[2].name), as_version=4).cells for o in c.get("outputs", []))
+    assert design["notice"] in shown
     assert m["eig_K_max_rel_error"] < 1e-6
     # and saved again as it was loaded
     assert designs.same(designs.load(tmp_path / "processed" / "design_03_thesis.json"), saved)

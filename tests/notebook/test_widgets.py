@@ -6,6 +6,7 @@ import matplotlib
 import leglib as lg
 from leglib import model as M
 from leglib.design.points import identify_response
+from leglib.device.virtual.wire import forget, serial_for_seed
 from leglib.notebook import widgets
 
 matplotlib.use("Agg")
@@ -45,7 +46,10 @@ def test_gain_panel_readout_follows_sliders(leg, monkeypatch):
         steps.append(lg.step_response(*args, **kwargs))
         return steps[-1]
     monkeypatch.setattr(widgets, "step_response", recorded)
-    dev = lg.connect("virtual", leg=leg, seed=5)
+    # a fresh board (a virtual board lives for the process under its seed: another test's
+    # session would have left it elsewhere)
+    forget(serial_for_seed(55))
+    dev = lg.connect("virtual", leg=leg, seed=55)
     lg.configure(dev)
     lg.calibrate(dev)
     with dev:
@@ -54,6 +58,7 @@ def test_gain_panel_readout_follows_sliders(leg, monkeypatch):
         s_pos.value = 40.0
         shown = readout.value
     assert [s.gains for s in steps] == [(50.0, 0.046, 0.001), (40.0, 0.046, 0.001)]
+    assert panel.last_step is steps[-1]
     expected = widgets.step_readout(steps[-1], leg=dev.leg)
     assert expected.startswith("zeta = ") and shown == _readout_html(expected)
     assert "at the foot m = " in expected and "N/m" in expected   # eqs. 6.1/6.3
@@ -151,3 +156,25 @@ def test_a_panel_figure_redraws_what_changed_and_keeps_the_rest():
     x, y = view.axes[1].transData.transform((0.2, 0.8))
     px = (int(h - y), int(x))
     assert tuple(first[px][:3]) != (255, 255, 255) and tuple(second[px][:3]) == (255, 255, 255)
+
+
+def test_the_pole_panels_picture_reads(leg, monkeypatch):
+    """The panel's picture at the size it is shown: no texts over each other or past its
+    edge, no legend on the curves (the torques' legend once hid the torque limit)."""
+    from leglib import plots
+    made = []
+    real = widgets.PanelFigure.__init__
+
+    def keep(self, *args, **kwargs):
+        real(self, *args, **kwargs)
+        made.append(self)
+
+    monkeypatch.setattr(widgets.PanelFigure, "__init__", keep)
+    widgets.pole_placement_panel(M.linearize(leg), center=-7.0, leg=leg, torque_limit=0.73)
+    (view,) = made
+    view.png()
+    assert plots.text_overlaps(view.fig) == [] and plots.clipped_texts(view.fig) == []
+    assert plots.legends_on_data(view.fig) == []
+    # K, L, Nbar shown with their units
+    assert "N·m/rad, N·m·s/rad, N·m/rad, N·m·s/rad by state" in widgets.design_readout(
+        widgets.pole_panel_design(M.linearize(leg), -7.0, 0.007, 6.0))

@@ -61,7 +61,28 @@ from ...params import OdriveConfig, PlantParams
 from ...twin import layout as L
 from ...twin.host import Twin, controller_defaults, max_measurable_current
 from ...twin.stages import fmodf_pos
-from .tree import Attr, Board, C, Call, Const, Endpoint, Err, Get, I, Key, S, _Node, build_tree, positive
+from . import catalog, transport
+from .board import BATTERY_RESISTANCE, BATTERY_VOLTAGE, BoardMixin
+from .procedures import THREAD_START_AFTER_RESET, AxisThread
+from .readings import AxisReadings
+from .tree import (
+    Attr,
+    Board,
+    C,
+    Call,
+    Const,
+    Endpoint,
+    Err,
+    Get,
+    I,
+    Key,
+    S,
+    UnmodeledError,
+    _Node,
+    build_tree,
+    c_value,
+    honoured,
+)
 
 FIRMWARES = ("0.5.1", "0.5.6")
 
@@ -85,7 +106,6 @@ CONTROL_MODES = (0, 1, 2, 3)  # voltage (the controller treats it as torque), to
 INPUT_MODE_INACTIVE, INPUT_MODE_PASSTHROUGH, INPUT_MODE_VEL_RAMP = 0, 1, 2
 INPUT_MODE_POS_FILTER, INPUT_MODE_TRAP_TRAJ, INPUT_MODE_TORQUE_RAMP = 3, 5, 6
 INPUT_MODE_MIRROR, INPUT_MODE_TUNING = 7, 8
-MOTOR_TYPE_HIGH_CURRENT = 0
 
 
 # firmware timings (fw-v0.5.6)
@@ -117,6 +137,9 @@ BOOT_TIME = 1.5
 
 # configuration kept per axis in python (the rest lives in the kernel's C array)
 _AXIS_CONFIG_KEYS = ("cpr", "pole_pairs", "motor_type", "motor_pre_calibrated",
+                     "phase_resistance", "phase_inductance", "calibration_current", "calib_range", "torque_constant",
+                     "offset_measured",
+                     "calib_scan_distance", "calib_scan_omega",
                      "encoder_pre_calibrated", "use_index", "direction", "trap_vel_limit",
                      "trap_accel_limit", "trap_decel_limit", "startup_motor_calibration",
                      "startup_encoder_offset_calibration", "startup_closed_loop_control",
@@ -127,6 +150,12 @@ _AXIS_CONFIG_KEYS = ("cpr", "pole_pairs", "motor_type", "motor_pre_calibrated",
 # slots of the kernel's C array that are volatile (inputs, leglib's abort bound, state)
 _C_VOLATILE = (L.C_INPUT_POS, L.C_INPUT_VEL, L.C_INPUT_TORQUE, L.C_ABORT_ERROR, L.C_COUNT_OFFSET,
                L.C_CAL_VEL, L.C_CAL_RAMP) + tuple(range(L.C_TT_XI, L.C_TT_YACC + 1))
+
+
+def _is_config(path: str) -> bool:
+    """Whether the firmware saves endpoint ``path`` with its configuration: the members of
+    its config structs (main.cpp:106-124), whose paths run through a ``config`` node."""
+    return ".config." in f".{path}."
 
 
 # -- the object tree: one row per endpoint (leglib/device/virtual/tree.py) ---------------
@@ -163,24 +192,31 @@ ENDPOINTS = (
     Endpoint("axis*.controller.config.pos_gain", C(L.C_POS_GAIN)),
     Endpoint("axis*.controller.config.vel_gain", C(L.C_VEL_GAIN)),
     Endpoint("axis*.controller.config.vel_integrator_gain", C(L.C_VEL_INT_GAIN)),
-    Endpoint("axis*.controller.config.vel_integrator_limit", C(L.C_VEL_INT_LIMIT), check=positive, since="0.5.4"),
-    Endpoint("axis*.controller.config.vel_limit", C(L.C_VEL_LIMIT), check=positive),
-    Endpoint("axis*.controller.config.vel_limit_tolerance", C(L.C_VEL_TOL), check=positive),
-    Endpoint("axis*.controller.config.input_filter_bandwidth", C(L.C_FILTER_BW), check=positive),
+    Endpoint("axis*.controller.config.vel_integrator_limit", C(L.C_VEL_INT_LIMIT), since="0.5.4"),
+    Endpoint("axis*.controller.config.vel_limit", C(L.C_VEL_LIMIT)),
+    Endpoint("axis*.controller.config.vel_limit_tolerance", C(L.C_VEL_TOL)),
+    Endpoint("axis*.controller.config.input_filter_bandwidth", C(L.C_FILTER_BW)),
     # the motor
     Endpoint("axis*.motor.error", Err(L.I_MOTOR_ERR), int),
     Endpoint("axis*.motor.is_calibrated", Key("motor_calibrated", writable=False), bool),
     Endpoint("axis*.motor.is_armed", Get("_is_armed"), bool, since="0.5.2"),   # 0.5.1: armed_state
-    Endpoint("axis*.motor.current_control.Iq_measured", S(L.S_IQ_MEAS)),
+    Endpoint("axis*.motor.current_control.Iq_measured", S(L.S_IQ_MEAS), since="0.5.2"),
+    # fw-v0.5.1 declares it writable: a write holds until the next measurement overwrites it
+    Endpoint("axis*.motor.current_control.Iq_measured", S(L.S_IQ_MEAS, writable=True), until="0.5.1"),
     Endpoint("axis*.motor.current_control.Iq_setpoint", S(L.S_IQ_SP)),
-    Endpoint("axis*.motor.config.pole_pairs", Key("pole_pairs"), int, check=positive),
-    Endpoint("axis*.motor.config.torque_constant", C(L.C_KT), check=positive),
-    Endpoint("axis*.motor.config.motor_type", Key("motor_type"), int, setter="_set_motor_type"),
-    Endpoint("axis*.motor.config.current_control_bandwidth", C(L.C_CURRENT_BW), check=positive),
-    Endpoint("axis*.motor.config.current_lim", C(L.C_CURRENT_LIM), check=positive),
-    Endpoint("axis*.motor.config.calibration_current", C(L.C_CAL_CURRENT), check=positive),
+    Endpoint("axis*.motor.config.pole_pairs", Key("pole_pairs"), int),
+    Endpoint("axis*.motor.config.torque_constant", Key("torque_constant"), setter="_set_torque_constant"),
+    Endpoint("axis*.motor.config.motor_type", Key("motor_type"), int,
+             check=honoured(0, "the leg's motors are MN5212s driven as HIGH_CURRENT (0); GIMBAL and ACIM "
+                               "control (voltage FOC, slip estimation) are not modelled")),
+    Endpoint("axis*.motor.config.current_control_bandwidth", C(L.C_CURRENT_BW)),
+    Endpoint("axis*.motor.config.current_lim", C(L.C_CURRENT_LIM)),
+    Endpoint("axis*.motor.config.calibration_current", Key("calibration_current")),
     Endpoint("axis*.motor.config.pre_calibrated", Key("motor_pre_calibrated"), bool, setter="_set_motor_pre_calibrated"),
-    Endpoint("axis*.motor.config.phase_resistance", Get("_phase_resistance")),
+    # motor.hpp:58-59: written by the motor calibration or by the host; either updates the
+    # current controller's gains (motor.cpp:297-302)
+    Endpoint("axis*.motor.config.phase_resistance", Key("phase_resistance"), setter="_set_phase_resistance"),
+    Endpoint("axis*.motor.config.phase_inductance", Key("phase_inductance"), setter="_set_phase_inductance"),
     # the encoder
     Endpoint("axis*.encoder.error", Key("encoder_error"), int),
     Endpoint("axis*.encoder.is_ready", Key("encoder_ready", writable=False), bool),
@@ -188,19 +224,21 @@ ENDPOINTS = (
     Endpoint("axis*.encoder.vel_estimate", S(L.S_VEL_EST)),
     Endpoint("axis*.encoder.shadow_count", I(L.I_COUNTS), int),
     Endpoint("axis*.encoder.count_in_cpr", Get("_count_in_cpr"), int),
-    Endpoint("axis*.encoder.config.cpr", Key("cpr"), int, check=positive, setter="_set_cpr"),
-    Endpoint("axis*.encoder.config.bandwidth", C(L.C_ENCODER_BW), check=positive),
-    Endpoint("axis*.encoder.config.direction", Key("direction"), int, since="0.5.2"),   # 0.5.1: motor.config
+    Endpoint("axis*.encoder.config.cpr", Key("cpr"), int, setter="_set_cpr"),
+    Endpoint("axis*.encoder.config.bandwidth", C(L.C_ENCODER_BW)),
+    Endpoint("axis*.encoder.config.direction", Key("direction"), int, since="0.5.2"),
+    Endpoint("axis*.motor.config.direction", Key("direction"), int, until="0.5.1"),     # fw-v0.5.1 motor.hpp
     Endpoint("axis*.encoder.config.pre_calibrated", Key("encoder_pre_calibrated"), bool,
              setter="_set_encoder_pre_calibrated"),
     Endpoint("axis*.encoder.config.use_index", Key("use_index"), bool, setter="_set_use_index"),
-    Endpoint("axis*.encoder.config.calib_range", Const(CALIB_RANGE)),
-    Endpoint("axis*.encoder.config.calib_scan_distance", Const(CALIB_SCAN_DISTANCE)),
-    Endpoint("axis*.encoder.config.calib_scan_omega", Const(CALIB_SCAN_OMEGA)),
+    # encoder.hpp:21-23: read by the offset calibration (encoder.cpp:415-436)
+    Endpoint("axis*.encoder.config.calib_range", Key("calib_range")),
+    Endpoint("axis*.encoder.config.calib_scan_distance", Key("calib_scan_distance")),
+    Endpoint("axis*.encoder.config.calib_scan_omega", Key("calib_scan_omega")),
     # the trapezoidal trajectory planner
-    Endpoint("axis*.trap_traj.config.vel_limit", Key("trap_vel_limit"), check=positive),
-    Endpoint("axis*.trap_traj.config.accel_limit", Key("trap_accel_limit"), check=positive),
-    Endpoint("axis*.trap_traj.config.decel_limit", Key("trap_decel_limit"), check=positive),
+    Endpoint("axis*.trap_traj.config.vel_limit", Key("trap_vel_limit")),
+    Endpoint("axis*.trap_traj.config.accel_limit", Key("trap_accel_limit")),
+    Endpoint("axis*.trap_traj.config.decel_limit", Key("trap_decel_limit")),
     # the board
     Endpoint("error", Err(L.I_SYS_ERR), int, since="0.5.2"),
     Endpoint("vbus_voltage", Get("_vbus_voltage")),
@@ -214,12 +252,15 @@ ENDPOINTS = (
     Endpoint("fw_version_revision", Attr("fw_revision"), int),
     Endpoint("hw_version_major", Const(3), int),
     Endpoint("hw_version_minor", Const(6), int),
-    Endpoint("config.brake_resistance", C(L.C_BRAKE_R), check=positive),
+    Endpoint("config.brake_resistance", Board("brake_resistance"), setter="_set_brake_resistance"),
     Endpoint("config.enable_brake_resistor", Board("enable_brake_resistor"), bool,
              setter="_set_enable_brake_resistor", since="0.5.2"),                # odrive_main.h:82
     Endpoint("config.max_regen_current", C(L.C_MAX_REGEN)),
     Endpoint("config.dc_max_positive_current", C(L.C_DC_MAX_POS)),
     Endpoint("config.dc_max_negative_current", C(L.C_DC_MAX_NEG)),
+    # main.cpp:300-305: checked every current measurement (kernel._board_checks)
+    Endpoint("config.dc_bus_undervoltage_trip_level", C(L.C_UV_TRIP)),
+    Endpoint("config.dc_bus_overvoltage_trip_level", C(L.C_OV_TRIP)),
     Endpoint("save_configuration", Call("_save_configuration")),             # main.cpp:159-184
     Endpoint("reboot", Call("_reboot_call")),                                # main.cpp:194
     Endpoint("clear_errors", Call("_clear_errors"), since="0.5.2"),          # main.cpp:236-249
@@ -274,7 +315,7 @@ ENDPOINTS = (
 )
 
 
-class VirtualODrive:
+class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
     """The virtual ODrive. Build it with :func:`leglib.device.session.connect` (backend
     ``"virtual"``) or directly.
 
@@ -321,12 +362,23 @@ class VirtualODrive:
         # magnets' offset to the encoder at power-up is arbitrary: the lock makes the rotor
         # jump by up to half a pitch, 5.5 deg of joint)
         self._magnet_offset = self._rng.random(2)
+        # where each AS5047D's index pulse is, in motor turns from the rest pose, and the
+        # calibration's measurement noise: streams of their own (the rest of the device's
+        # random numbers are drawn as before)
+        self._index_position = np.random.default_rng([seed, 1]).random(2)
+        self._cal_rng = np.random.default_rng([seed, 2])
         self.st = self.twin.rest_state()
         self._pending = 0.0
         self._t0_wall = _time.monotonic()
         self._handle_boot = 0
+        self._boot_t0 = 0.0              # virtual time of this boot (the counters count from it)
+        self._usb_packets = 0            # USB packets since this boot (system_stats.usb)
+        self._test_counter = 0           # test_function's static counter
+        self._brake_saturated = False    # brake_resistor_saturated (latched)
+        self._config_bytes = 0           # user_config_loaded
         self._factory_defaults()
         self._factory = self._config_snapshot()
+        self._factory_values = {a: dict(values) for a, values in self._settings.items()}
         self._boot()
         self._tree = self._build_tree()
 
@@ -342,21 +394,21 @@ class VirtualODrive:
         C[0, :, L.C_VEL_INT_LIMIT] = np.inf
         C[0, :, L.C_INPUT_MODE] = INPUT_MODE_PASSTHROUGH
         C[0, :, L.C_FILTER_BW] = 2.0
-        C[0, :, L.C_CAL_CURRENT] = 10.0
         C[0, :, L.C_INT_RESET_TORQUE] = 1.0
         v056 = self.firmware != "0.5.1"
         C[0, 0, L.C_BRAKE_ON] = 0.0 if v056 else 1.0        # odrive_main.h:82 (0.5.2+)
-        C[0, 0, L.C_BRAKE_R] = 2.0                          # DEFAULT_BRAKE_RESISTANCE (v3.x)
         C[0, 0, L.C_MAX_REGEN] = 0.0
         C[0, 0, L.C_DC_MAX_POS] = np.inf
         C[0, 0, L.C_DC_MAX_NEG] = -0.01                     # odrive_main.h:111
-        C[0, 0, L.C_VBUS] = 24.0
+        C[0, 0, L.C_VBUS] = BATTERY_VOLTAGE                 # the thesis's 6S pack (board.py)
+        C[0, 0, L.C_VBUS_R] = BATTERY_RESISTANCE
+        C[0, 0, L.C_VBUS_CHECKS] = 1.0                      # main.cpp:300-305
         C[0, 0, L.C_REGEN_ERR_STYLE] = 0.0 if v056 else 1.0
         controller_defaults(C[0], cpr=8192)                 # controller.hpp:25-56, encoder.hpp:27
         C[0, :, L.C_PHASE_R] = 0.0                          # motor.hpp:22-23: not measured yet
         C[0, :, L.C_PHASE_L] = 0.0
         C[0, 0, L.C_FW_056] = 1.0 if v056 else 0.0
-        self._board = {"enable_brake_resistor": not v056}
+        self._board = {"enable_brake_resistor": not v056, "brake_resistance": 2.0}
         self._axis = []
         for a in range(2):
             self._axis.append({
@@ -365,14 +417,49 @@ class VirtualODrive:
                 "motor_pre_calibrated": False, "encoder_pre_calibrated": False, "use_index": False,
                 "direction": 0, "trap_vel_limit": 2.0, "trap_accel_limit": 0.5, "trap_decel_limit": 0.5,
                 "startup_motor_calibration": False, "startup_encoder_offset_calibration": False,
-                "startup_closed_loop_control": False,
+                "startup_closed_loop_control": False, "phase_resistance": 0.0, "phase_inductance": 0.0,
+                "calibration_current": 10.0, "calib_range": CALIB_RANGE, "calib_scan_distance": CALIB_SCAN_DISTANCE,
+                "calib_scan_omega": CALIB_SCAN_OMEGA, "torque_constant": 0.04, "offset_measured": None,
             })
+        # every configuration endpoint at the firmware's default for the board presented
+        # (tables/defaults_fw-v*.json), the settings of the catalog's rows among them
+        self._apply_table_defaults()
+        self._settings = self._factory_settings(self._rows())
 
     def _config_snapshot(self) -> dict:
         C = self.st.C[0].copy()
         C[:, list(_C_VOLATILE)] = 0.0          # inputs and state are not configuration
         return {"C": C, "axes": [{k: ax[k] for k in _AXIS_CONFIG_KEYS} for ax in self._axis],
-                "board": dict(self._board)}
+                "board": dict(self._board),
+                "settings": {a: {k: v for k, v in values.items() if _is_config(k)}
+                             for a, values in self._settings.items()}}
+
+    def _rows(self) -> tuple:
+        """The rows of this device's tree: its own (:attr:`endpoints`) and, for every other
+        endpoint of the firmware's table, the catalog's (:mod:`.catalog`)."""
+        return tuple(self.endpoints) + catalog.fill(self.endpoints, self.firmware)
+
+    def _apply_table_defaults(self):
+        """Set every writable configuration row to the firmware's default (its store
+        directly: a fresh board, no side effects)."""
+        from .wire import firmware_defaults  # load time: the tables live with the wire (which imports this module)
+        defaults = firmware_defaults(self.firmware)
+        types = None
+        for row in self.endpoints:
+            if not row.active(self.firmware) or row.function or ".config." not in f".{row.path}.":
+                continue
+            hit = defaults.get(row.path)
+            if hit is None or not isinstance(row.store, (C, Key, Board)):
+                continue
+            for a, where in row.concrete():
+                _, set_ = row.store.bind(self, a, row.kind, where)
+                if set_ is not None:
+                    value = hit["axes"][a] if ("axes" in hit and a is not None) else hit["value"]
+                    if row.kind is int:
+                        # C's conversion to the member's type (uint8 axis_to_mirror = -1 is 255)
+                        types = types if types is not None else catalog.table_types(self.firmware)
+                        value = c_value(types[row.path], value)
+                    set_(row.kind(value))
 
     def _boot(self):
         """Power-up or reset: volatile state from scratch, the saved configuration loaded."""
@@ -381,6 +468,15 @@ class VirtualODrive:
         for ax, cfg in zip(self._axis, saved["axes"]):
             ax.update(cfg)
         self._board.update(saved["board"])
+        # the settings: the firmware's defaults, the saved configuration over them
+        for a, values in self._factory_values.items():
+            self._settings[a].update(values)
+            self._settings[a].update(saved.get("settings", {}).get(a, {}))
+        self._config_bytes = 0 if self.saved_configuration is None else self._saved_size()
+        self._boot_t0 = self.time
+        self._usb_packets = 0
+        self._test_counter = 0
+        self._brake_saturated = False
         st = self.st
         st.AI[0, :, :] = 0
         st.AI[0, :, L.I_TRAJ_DONE] = 1
@@ -402,16 +498,24 @@ class VirtualODrive:
         self._rezero_counts()
         # the brake resistor is armed at start-up when enabled (low_level.cpp:181-183)
         self._brake_armed = bool(self._board["enable_brake_resistor"])
-        st.C[0, 0, L.C_BRAKE_ON] = 1.0 if self._brake_armed else 0.0
+        self._sync_brake()
         for a, ax in enumerate(self._axis):
-            ax.update({"requested_state": AXIS_STATE_UNDEFINED, "pending": None, "state": AXIS_STATE_IDLE,
-                       "chain": [], "phase": None, "phase_end": None,
-                       "motor_calibrated": bool(ax["motor_pre_calibrated"]),   # motor.cpp:306
-                       # encoder.cpp:19-30: pre_calibrated makes an incremental encoder ready
-                       # only after its index is found; this leg has no index
-                       "encoder_ready": False, "encoder_error": 0, "scan_start": None})
+            self._set_torque_constant(a, ax["torque_constant"])
+            # the current controller's gains from the configured R and L (motor.cpp:297-302)
+            self._set_phase_resistance(a, ax["phase_resistance"])
+            self._set_phase_inductance(a, ax["phase_inductance"])
+        for a, ax in enumerate(self._axis):
+            ax.update({"motor_calibrated": bool(ax["motor_pre_calibrated"]),   # motor.cpp:306
+                       # encoder.cpp:19-30: an incremental encoder is ready only after its
+                       # offset calibration, or (pre-calibrated) once its index is found
+                       "encoder_ready": False, "ready_by_index": False, "index_found": False,
+                       "index_armed": False, "encoder_error": 0, "calib_scan_response": 0.0,
+                       "lockin_state": 0, "last_error_time": {}, "errors_seen": {}})
             # axis.cpp:77-81: apply_config feeds the watchdog at boot
             self._feed(a)
+        # the axis threads take up STARTUP_SEQUENCE (axis.hpp:202) once the board has booted
+        self._start_axis_threads(self.time + (THREAD_START_AFTER_RESET if self.boot_count else 0.0))
+        self._check_brake_resistance()
 
     def _rezero_counts(self):
         st = self.st
@@ -437,6 +541,8 @@ class VirtualODrive:
         self._boot()
         self._booted_at = self.time
         self._tree = self._build_tree()
+        for hook in list(self.__dict__.get("_reset_hooks", ())):    # the wire: the USB device re-enumerates
+            hook(self)
 
     def handle(self):
         """The object tree of the current boot (what a new USB connection gives)."""
@@ -475,16 +581,15 @@ class VirtualODrive:
         if progress and n == 0 and seconds > 0:
             n = 1
         self._pending -= n * dt
-        # run up to each state-machine event, handle it, go on
-        while True:
-            self._process_events()
+        # run up to each state-machine event, handle it, go on (the events at one instant
+        # are handled once)
+        self._process_events()
+        while n > 0:
             te = self._next_event()
-            if n <= 0:
-                break
             k = n if te is None else max(1, min(n, int(math.ceil((te - self.time) / dt - 1e-9))))
             self.twin.run(self.st, ticks=k)
             n -= k
-        self._process_events()
+            self._process_events()
 
     def sleep(self, seconds: float) -> None:
         """Let ``seconds`` of (virtual) time pass; in real-time mode also wait."""
@@ -502,13 +607,14 @@ class VirtualODrive:
         self.realtime = bool(on)
         self._t0_wall = _time.monotonic() - self.time
 
-    # the virtual clock may run this far ahead of the wall clock before the host is made to
-    # wait: sleeping for every 0.4 ms transaction would cost more in the OS's sleep overshoot
-    PACE_SLACK = 1e-3
-
     def _pace(self):
+        """Real time: the virtual clock never runs ahead of the wall clock. A transaction
+        that moved it ahead waits (the host's transaction takes that long), one left behind
+        by the host's own work catches up (the board ran on meanwhile). So a request is
+        taken up within one axis-thread period of wall time after its write returns, as on
+        the board (axis.cpp:447-451): a script that sleeps 1 ms sees it taken."""
         ahead = self.time - (_time.monotonic() - self._t0_wall)
-        if ahead > self.PACE_SLACK:
+        if ahead > 0.0:
             _time.sleep(ahead)
         elif ahead < -self.twin.dt:
             self._advance(-ahead)
@@ -527,35 +633,18 @@ class VirtualODrive:
         if booted is not None and self.time < booted + BOOT_TIME:
             raise DeviceLostError("virtual ODrive: the board is rebooting and does not answer yet")
         self.transactions += 1
+        self._usb_packets += 1
         p = self.twin.plant
-        latency = p.usb_latency * (1.0 + p.usb_jitter * (self._rng.random() - 0.5) * 2.0)
-        self._advance(latency)
+        self._advance(transport.latency(p.usb_latency, p.usb_jitter, float(self._rng.random())))
         if self.realtime:
             self._pace()
 
-    # -- firmware state machine --------------------------------------------------------
-    def _next_event(self):
-        times = []
-        for ax in self._axis:
-            if ax["pending"] is not None:
-                times.append(ax["pending"][1])
-            if ax["phase_end"] is not None:
-                times.append(ax["phase_end"])
-        return min(times) if times else None
-
+    # -- firmware state machine (the axis thread: procedures.py) ----------------------
     def _process_events(self):
         now = self.time + 1e-12
-        st = self.st
-        for a, ax in enumerate(self._axis):
-            # a fault (or leglib's abort) disarmed the motor: the state ends, chain cleared
-            if ax["state"] == AXIS_STATE_CLOSED_LOOP_CONTROL and st.AI[0, a, L.I_MODE] == L.MODE_IDLE:
-                ax["state"], ax["chain"] = AXIS_STATE_IDLE, []
-            if ax["phase"] is not None and st.AI[0, a, L.I_MODE] == L.MODE_IDLE:
-                self._fail(a)  # calibration disarmed by a fault (watchdog, bus)
-            if ax["pending"] is not None and now >= ax["pending"][1]:
-                self._consume_request(a, ax["pending"][0])
-            while ax["phase_end"] is not None and now >= ax["phase_end"]:
-                self._calibration_step(a)
+        self._board_events()
+        self._note_error_times()
+        self._axis_events(now)
         if self.payload_off_for_calibration and self.twin.plant.payload_mass > 0:
             calibrating = any(ax["state"] in (AXIS_STATE_MOTOR_CALIBRATION, AXIS_STATE_ENCODER_OFFSET_CALIBRATION)
                               for ax in self._axis)
@@ -563,65 +652,10 @@ class VirtualODrive:
                 self.twin.mount_payload(not calibrating)
         # motor.cpp:312-338: the IDLE loop sets the current sense up every iteration, with
         # the requested_current_range written meanwhile (axis.cpp:437-440)
+        st = self.st
         for a, ax in enumerate(self._axis):
             if ax["state"] == AXIS_STATE_IDLE and st.AI[0, a, L.I_MODE] == L.MODE_IDLE:
                 st.C[0, a, L.C_MAX_CURRENT] = max_measurable_current(ax["requested_current_range"])
-
-    def _request_state(self, a: int, value: int):
-        # axis.cpp:455-488: the axis thread picks the request up on its next iteration
-        t = self.time
-        consume = (math.floor(t / AXIS_THREAD_PERIOD + 1e-9) + 1) * AXIS_THREAD_PERIOD
-        self._axis[a]["pending"] = (value, consume)
-        self._axis[a]["requested_state"] = value
-
-    def _consume_request(self, a: int, value: int):
-        ax = self._axis[a]
-        ax["pending"] = None
-        ax["requested_state"] = AXIS_STATE_UNDEFINED
-        self.st.AI[0, a, L.I_AXIS_ERR] &= ~AXIS_ERROR_INVALID_STATE   # axis.cpp:487
-        # the running state ends (handlers exit on a new request): disarm
-        self._disarm(a)
-        ax["phase"], ax["phase_end"] = None, None
-        if value == AXIS_STATE_STARTUP_SEQUENCE:
-            chain = ([AXIS_STATE_MOTOR_CALIBRATION] if ax["startup_motor_calibration"] else []) + \
-                    ([AXIS_STATE_ENCODER_OFFSET_CALIBRATION] if ax["startup_encoder_offset_calibration"] else []) + \
-                    ([AXIS_STATE_CLOSED_LOOP_CONTROL] if ax["startup_closed_loop_control"] else [])
-        elif value == AXIS_STATE_FULL_CALIBRATION_SEQUENCE:
-            chain = [AXIS_STATE_MOTOR_CALIBRATION] + \
-                    ([AXIS_STATE_ENCODER_INDEX_SEARCH] if ax["use_index"] else []) + \
-                    [AXIS_STATE_ENCODER_OFFSET_CALIBRATION]
-        elif value == AXIS_STATE_IDLE:
-            chain = []
-        else:
-            chain = [value]
-        ax["chain"] = chain + [AXIS_STATE_IDLE]
-        self._next_task(a)
-
-    def _next_task(self, a: int):
-        ax = self._axis[a]
-        state = ax["chain"].pop(0) if ax["chain"] else AXIS_STATE_IDLE
-        ax["state"] = state
-        if state == AXIS_STATE_IDLE:
-            ax["chain"] = []
-        elif state == AXIS_STATE_MOTOR_CALIBRATION:
-            self._start_motor_calibration(a)
-        elif state == AXIS_STATE_ENCODER_OFFSET_CALIBRATION:
-            self._start_offset_calibration(a)
-        elif state == AXIS_STATE_CLOSED_LOOP_CONTROL:
-            self._enter_closed_loop(a)
-        else:
-            # index search, homing, lock-in spin, ... are not simulated: refused (stricter)
-            self._invalid(a)
-
-    def _invalid(self, a):
-        self.st.AI[0, a, L.I_AXIS_ERR] |= AXIS_ERROR_INVALID_STATE   # axis.cpp:586-589
-        self._fail(a)
-
-    def _fail(self, a):
-        ax = self._axis[a]
-        self._disarm(a)
-        ax["phase"], ax["phase_end"], ax["chain"] = None, None, []
-        ax["state"] = AXIS_STATE_IDLE
 
     def _disarm(self, a):
         st = self.st
@@ -639,107 +673,12 @@ class VirtualODrive:
             return False
         return True
 
-    # calibration as motion --------------------------------------------------------
-    def _lock_position(self, a) -> float:
-        """Motor turns where electrical angle 0 holds the rotor: the alignment nearest to
-        where it is now (the kernel's frame)."""
-        j = self.twin.axes.joint_of_axis(a)
-        turns = float(self.twin.axes.motor_turns(self.twin.motor_angle(self.st, j)[0], j))
-        pp = self.twin.motor.pole_pairs
-        off = self._magnet_offset[a] / pp
-        return off + round((turns - off) * pp) / pp
-
-    def _start_motor_calibration(self, a):
-        ax, st = self._axis[a], self.st
-        if not self._arm(a):
-            return self._fail(a)
-        st.AS[0, a, L.S_CAL_POS] = self._lock_position(a)
-        st.C[0, a, L.C_CAL_VEL] = 0.0
-        st.AS[0, a, L.S_CAL_I] = 0.0
-        st.C[0, a, L.C_CAL_RAMP] = st.C[0, a, L.C_CAL_CURRENT] / (3.0 * self.twin.motor.phase_resistance / 1.0)
-        st.AI[0, a, L.I_MODE] = L.MODE_CALIB
-        ax["motor_calibrated"] = False
-        ax["phase"], ax["phase_end"] = "resistance", self.time + R_MEASUREMENT_TIME
-
-    def _start_offset_calibration(self, a):
-        ax, st = self._axis[a], self.st
-        if not ax["motor_calibrated"]:
-            return self._invalid(a)
-        # encoder.cpp:344 sets shadow_count := count_in_cpr, but the next tick's incremental
-        # update (encoder.cpp:480,657-662,762) adds the int16 difference between the
-        # timer's count and that value: shadow_count is the timer's count again, in the
-        # boot frame, up to a multiple of 2^16 when the count is that far from [0, cpr)
-        cpr = ax["cpr"]
-        count = int(st.AI[0, a, L.I_COUNTS])
-        in_cpr = count % cpr
-        shift = in_cpr + ((count - in_cpr + 0x8000) % 0x10000 - 0x8000) - count
-        if shift:
-            st.C[0, a, L.C_COUNT_OFFSET] += shift
-            st.AI[0, a, L.I_COUNTS] += shift
-            st.AS[0, a, L.S_COUNT_F] += shift
-        ax["encoder_ready"] = False
-        if not self._arm(a):
-            return self._fail(a)
-        st.AS[0, a, L.S_CAL_POS] = self._lock_position(a)   # phase wrap(-8 pi) = 0
-        st.C[0, a, L.C_CAL_VEL] = 0.0
-        st.AS[0, a, L.S_CAL_I] = 0.0
-        st.C[0, a, L.C_CAL_RAMP] = OFFSET_RAMP_PER_A * st.C[0, a, L.C_CAL_CURRENT]
-        st.AI[0, a, L.I_MODE] = L.MODE_CALIB
-        ax["phase"], ax["phase_end"] = "lock", self.time + OFFSET_LOCK_TIME
-
-    def _calibration_step(self, a):
-        ax, st = self._axis[a], self.st
-        phase = ax["phase"]
-        scan_time = CALIB_SCAN_DISTANCE / CALIB_SCAN_OMEGA
-        scan_vel = CALIB_SCAN_OMEGA / (2 * math.pi * self.twin.motor.pole_pairs)  # turn/s of the rotor
-        if phase == "resistance":
-            # inductance measurement: alternating voltage, no net torque: the rotor is free
-            ax["saved_cal_current"] = float(st.C[0, a, L.C_CAL_CURRENT])
-            st.C[0, a, L.C_CAL_CURRENT] = 0.0
-            ax["phase"], ax["phase_end"] = "inductance", ax["phase_end"] + L_MEASUREMENT_TIME
-        elif phase == "inductance":
-            st.C[0, a, L.C_CAL_CURRENT] = ax.pop("saved_cal_current")
-            self._disarm(a)
-            ax["motor_calibrated"] = True              # motor.cpp:509
-            # motor.cpp:416-507: the measured R and L, from which the current controller's
-            # gains follow (motor.cpp:297-302, 507)
-            st.C[0, a, L.C_PHASE_R] = self.twin.motor.phase_resistance
-            st.C[0, a, L.C_PHASE_L] = self.twin.motor.phase_inductance
-            ax["phase"], ax["phase_end"] = None, None
-            self._next_task(a)
-        elif phase == "lock":
-            ax["scan_start"] = int(st.AI[0, a, L.I_COUNTS])
-            st.C[0, a, L.C_CAL_VEL] = scan_vel
-            ax["phase"], ax["phase_end"] = "forward", ax["phase_end"] + scan_time
-        elif phase == "forward":
-            count = int(st.AI[0, a, L.I_COUNTS])
-            start = ax["scan_start"]
-            if abs(count - start) <= 8:                # encoder.cpp:412-423
-                ax["encoder_error"] |= ENCODER_ERROR_NO_RESPONSE
-                st.AI[0, a, L.I_AXIS_ERR] |= AXIS_ERROR_ENCODER_FAILED
-                return self._fail(a)
-            ax["direction"] = 1 if count > start else -1
-            expected = CALIB_SCAN_DISTANCE / (ax["pole_pairs"] * 2 * math.pi / ax["cpr"])
-            if abs(abs(count - start) - expected) / expected > CALIB_RANGE:   # encoder.cpp:425-433
-                ax["encoder_error"] |= ENCODER_ERROR_CPR_POLEPAIRS_MISMATCH
-                st.AI[0, a, L.I_AXIS_ERR] |= AXIS_ERROR_ENCODER_FAILED
-                return self._fail(a)
-            st.C[0, a, L.C_CAL_VEL] = -scan_vel
-            ax["phase"], ax["phase_end"] = "backward", ax["phase_end"] + scan_time
-        elif phase == "backward":
-            self._disarm(a)
-            ax["encoder_ready"] = True                 # encoder.cpp:461
-            ax["phase"], ax["phase_end"] = None, None
-            self._next_task(a)
-
     def _enter_closed_loop(self, a):
-        ax, st = self._axis[a], self.st
-        # axis.cpp:569-575: needs a calibrated motor and an encoder with a direction
-        if not ax["motor_calibrated"] or not ax["encoder_ready"] or (self.firmware != "0.5.1" and ax["direction"] == 0):
-            return self._invalid(a)
+        """axis.cpp:577-578, 257-332: the closed loop's entry (its checks: procedures.py)."""
+        st = self.st
         self._feed(a)                                  # axis.cpp:577
         if not self._arm(a):
-            return self._fail(a)
+            return
         # the controller's inputs connected to this axis's encoder (axis.cpp:270-285; the
         # controller reads its own axis's encoder: load_encoder_axis)
         st.AI[0, a, L.I_CONNECTED] = 1
@@ -819,8 +758,10 @@ class VirtualODrive:
 
     def _set_control_mode(self, a: int, value: int):
         if value not in CONTROL_MODES:
-            raise ValueError(f"odrv.axis{a}.controller.config.control_mode: {value} is not a ControlMode of "
-                             f"firmware {self.firmware} (0 voltage, 1 torque, 2 velocity, 3 position)")
+            # the firmware stores any uint8 (its controller treats >= 3 as position control,
+            # controller.cpp:296); a value beyond the enum is refused here (stricter)
+            raise UnmodeledError(f"odrv.axis{a}.controller.config.control_mode: {value} is not a ControlMode of "
+                                 f"firmware {self.firmware} (0 voltage, 1 torque, 2 velocity, 3 position)")
         st = self.st
         st.C[0, a, L.C_CONTROL_MODE] = value
         if self.firmware != "0.5.1":
@@ -875,6 +816,11 @@ class VirtualODrive:
     def _set_cpr(self, a: int, value: int):
         """encoder.config.cpr: the PLL works in counts (encoder.cpp:774-801), so its
         estimate in turns rescales with the cpr it is divided by."""
+        if value <= 0:
+            # the firmware stores it; its estimate would be counts / 0 or of the wrong sign
+            # (encoder.cpp:800) and count_in_cpr a mod by it (encoder.cpp:757): refused
+            raise UnmodeledError(f"odrv.axis{a}.encoder.config.cpr = {value}: a cpr that is not positive divides the "
+                                 f"encoder's estimate by 0 or turns it (encoder.cpp:757,800); not modelled")
         st, ax = self.st, self._axis[a]
         ratio = float(st.C[0, a, L.C_CPR]) / value
         pc = self._pos_circular(a)
@@ -896,8 +842,8 @@ class VirtualODrive:
             # wrap_pm(x, inf) is x - 0 * inf, NaN (utils.hpp:123-130): every setpoint and
             # pos_circular would turn NaN on the board; refused here (stricter). Zero and
             # negative ranges the firmware wraps by as written: the kernel does too
-            raise ValueError(f"odrv.axis{a}.controller.config.circular_setpoint_range must be a finite number of "
-                             f"turns, got {value} (the firmware's wrap multiplies by it: utils.hpp:123-130)")
+            raise UnmodeledError(f"odrv.axis{a}.controller.config.circular_setpoint_range must be a finite number "
+                                 f"of turns, got {value} (the firmware's wrap multiplies by it: utils.hpp:123-130)")
         st = self.st
         pc = self._pos_circular(a)    # pos_circular of the old range, then wrapped into the new one
         st.C[0, a, L.C_CIRC_RANGE] = value
@@ -918,17 +864,10 @@ class VirtualODrive:
 
     def _set_load_encoder_axis(self, a: int, value: int):
         if value != a:
-            raise ValueError(f"odrv.axis{a}.controller.config.load_encoder_axis = {value}: the twin's controller "
-                             f"reads its own axis's encoder only (each motor of this leg has its encoder on its "
-                             f"shaft); another axis's encoder (axis.cpp:276-280) or the sensorless estimator is "
-                             f"not modelled")
-
-    def _set_motor_type(self, a: int, value: int):
-        if value != MOTOR_TYPE_HIGH_CURRENT:
-            raise ValueError(f"odrv.axis{a}.motor.config.motor_type = {value}: the twin models the leg's MN5212 as "
-                             f"MOTOR_TYPE_HIGH_CURRENT (0) only; GIMBAL (2, voltage control: motor.cpp:588-593) and "
-                             f"ACIM (1) are not modelled")
-        self._axis[a]["motor_type"] = value
+            raise UnmodeledError(f"odrv.axis{a}.controller.config.load_encoder_axis = {value}: the twin's "
+                                 f"controller reads its own axis's encoder only (each motor of this leg has its "
+                                 f"encoder on its shaft); another axis's encoder (axis.cpp:276-280) or the "
+                                 f"sensorless estimator is not modelled")
 
     def _set_requested_current_range(self, a: int, value: float):
         # applied by the IDLE loop's motor.setup() (see _process_events)
@@ -951,7 +890,10 @@ class VirtualODrive:
             st.AI[0, 0, L.I_SYS_ERR] = 0
             if self._board["enable_brake_resistor"]:
                 self._brake_armed = True
-                st.C[0, 0, L.C_BRAKE_ON] = 1.0
+                self._sync_brake()
+            self._check_brake_resistance()
+        elif self.firmware == "0.5.1":
+            self._board_events_051()          # the next check sets BRAKE_RESISTOR_DISARMED again
 
     def _set_enable_brake_resistor(self, value: bool):
         # the flag only; the resistor is armed at boot or by clear_errors (main.cpp:246-248,
@@ -959,7 +901,8 @@ class VirtualODrive:
         self._board["enable_brake_resistor"] = bool(value)
         if not value:
             self._brake_armed = False
-            self.st.C[0, 0, L.C_BRAKE_ON] = 0.0
+            self._sync_brake()
+        self._check_brake_resistance()
 
     def _save_configuration(self):
         if self.firmware == "0.5.1":
@@ -982,43 +925,42 @@ class VirtualODrive:
     def _build_tree(self) -> _Node:
         """The object tree of this boot from :attr:`endpoints` (see :mod:`.tree`); the
         endpoints by name in ``_leaves`` (what the wire serves)."""
-        tree, self._leaves = build_tree(self, self.endpoints, self.firmware)
+        tree, self._leaves = build_tree(self, self._rows(), self.firmware)
         return tree
 
     def _set_motor_pre_calibrated(self, a: int, value: bool):
-        # motor.hpp:54-57
+        # motor.hpp:53-56
         ax = self._axis[a]
         ax["motor_pre_calibrated"] = value
         ax["motor_calibrated"] = ax["motor_calibrated"] or value
 
     def _set_encoder_pre_calibrated(self, a: int, value: bool):
-        # encoder.cpp:130-138: an incremental encoder without a found index cannot be
-        # pre-calibrated: the flag reads back False
+        # encoder.hpp set_pre_calibrated -> encoder.cpp:130-138 check_pre_calibrated: the flag
+        # stays only on a ready encoder, and an incremental one only once its index is found
         ax = self._axis[a]
-        ax["encoder_pre_calibrated"] = bool(value) and ax["encoder_ready"] and ax["use_index"] and False
+        ax["encoder_pre_calibrated"] = bool(value) and ax["encoder_ready"] and bool(ax.get("index_found"))
 
     def _set_use_index(self, a: int, value: bool):
-        if value:
-            raise ValueError(f"odrv.axis{a}.encoder.config.use_index: the index search is not simulated "
-                             f"(this leg's encoders are used without index)")
-        self._axis[a]["use_index"] = False
+        # encoder.hpp set_use_index: stored, the index interrupt (un)subscribed
+        # (encoder.cpp:109-117); the index search finds the AS5047D's index pulse
+        ax = self._axis[a]
+        ax["use_index"] = bool(value)
+        ax["index_armed"] = bool(value) and not ax.get("index_found") and not bool(
+            self._settings[a].get("axis*.encoder.config.find_idx_on_lockin_only"))
 
     def _is_armed(self, a: int) -> bool:
         return bool(self.st.AI[0, a, L.I_MODE] != L.MODE_IDLE)
 
     def _count_in_cpr(self, a: int) -> int:
-        return int(self.st.AI[0, a, L.I_COUNTS]) % self._axis[a]["cpr"]
-
-    def _phase_resistance(self, a: int) -> float:
-        # the calibration's measurement (motor.cpp:416-423); 0 until the motor is calibrated
-        return float(self.st.C[0, a, L.C_PHASE_R])
+        # encoder.cpp:757: mod(count, cpr) (utils.hpp:154-158); a cpr of 0 the firmware
+        # stores, its mod divides by: read as the count (a Cortex-M's division by 0 is 0)
+        cpr = self._axis[a]["cpr"]
+        count = int(self.st.AI[0, a, L.I_COUNTS])
+        return count % cpr if cpr else count
 
     def _uptime_ms(self) -> int:
         """system_stats.uptime: the FreeRTOS tick count (1 ms) since this boot, uint32."""
         return int((self.time - getattr(self, "_booted_at", 0.0)) * 1000.0) & 0xFFFFFFFF
-
-    def _vbus_voltage(self) -> float:
-        return float(self.st.C[0, 0, L.C_VBUS]) + 0.05 * float(self._rng.standard_normal())
 
     # the tree's attributes are the device's (through the handle of the last connection)
     def __getattr__(self, name):
@@ -1033,7 +975,12 @@ class VirtualODrive:
         return getattr(tree, name)
 
     def __setattr__(self, name, value):
-        if name in ("axis0", "axis1", "config", "vbus_voltage", "error"):
+        if name[0] == "_":               # the model's own state (the common case: fast)
+            object.__setattr__(self, name, value)
+            return
+        tree = self.__dict__.get("_tree")
+        if name in ("axis0", "axis1", "config", "vbus_voltage", "error") or (
+                tree is not None and not name.startswith("_") and name in tree._props):
             if self._handle_boot != self.boot_count:
                 raise DeviceLostError("virtual ODrive: the board rebooted since this connection was made; reconnect")
             setattr(self._tree, name, value)
@@ -1067,8 +1014,13 @@ class VirtualODrive:
                                    f"clear it first")
             if ax["state"] != AXIS_STATE_IDLE or ax["pending"] is not None:
                 raise RuntimeError(f"axis{a} is not IDLE: a whole step starts from rest")
+        if self._vbus_trips_reachable():
+            raise RuntimeError("the bus trip levels (config.dc_bus_under/overvoltage_trip_level) are within "
+                               "reach of the battery's voltage under load: a whole step batch does not check "
+                               "them; run the steps through the polling path")
         start = self.st.copy()
         start.C[0, :, L.C_WD_ENABLE] = 0.0
+        start.C[0, 0, L.C_VBUS_CHECKS] = 0.0        # out of reach (checked above)
         start.AI[0, :, L.I_TRAJ_DONE] = 1
         start.ABORT[...] = 0
         out = self.twin.step_batch(gains, start=start, **kwargs)

@@ -30,12 +30,13 @@ from __future__ import annotations
 
 import functools
 import math
+import struct
 from dataclasses import dataclass
 from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
-from ...errors import DeviceLostError
+from ...errors import DeviceLostError, LeglibError
 
 # the firmware releases a v3.6 runs (tags fw-v0.5.1 ... fw-v0.5.6): what since/until name
 RELEASES = ("0.5.1", "0.5.2", "0.5.3", "0.5.4", "0.5.5", "0.5.6")
@@ -44,11 +45,19 @@ RELEASES = ("0.5.1", "0.5.2", "0.5.3", "0.5.4", "0.5.5", "0.5.6")
 AXES = (0, 1)
 
 
-class _Prop:
-    """One property of the tree: getter, optional setter, value type."""
+class UnmodeledError(LeglibError, NotImplementedError):
+    """The virtual ODrive cannot honour this use of an endpoint (a value it does not model,
+    a function or state it refuses); the message names the endpoint and why. The real board
+    would act on it: the model is stricter, never silently different."""
 
-    def __init__(self, get, set=None, kind=float):
-        self.get, self.set, self.kind = get, set, kind
+
+class _Prop:
+    """One property of the tree: getter, optional setter, value type; ``nan_ok``: a NaN is
+    stored (a setting the model holds, as the firmware holds any float) rather than refused
+    (a value the kernel would compute with)."""
+
+    def __init__(self, get, set=None, kind=float, nan_ok=False):
+        self.get, self.set, self.kind, self.nan_ok = get, set, kind, nan_ok
 
 
 class _Node:
@@ -109,7 +118,7 @@ class _Node:
             if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
                 raise TypeError(f"'{self._path}.{name}' expects a number, got {value!r}")
             value = float(value)
-            if math.isnan(value):
+            if math.isnan(value) and not prop.nan_ok:
                 raise ValueError(f"'{self._path}.{name}' must be a number, got {value!r}")
         self._alive()
         self._dev._transaction()
@@ -132,6 +141,16 @@ def positive(where: str, value) -> None:
         raise ValueError(f"{where} must be positive, got {value}")
 
 
+def honoured(value, reason: str) -> Callable:
+    """A check accepting only ``value``, the one the model honours: another raises
+    :class:`UnmodeledError` naming the endpoint and ``reason`` (the firmware would store it
+    and act on it)."""
+    def check(where, v):
+        if v != value:
+            raise UnmodeledError(f"{where} = {v!r}: {reason}; the virtual ODrive accepts only {value!r}")
+    return check
+
+
 # ---------------------------------------------------------------------------------------
 # stores: where a row's value lives. ``bind(dev, a, kind)`` gives the getter and the setter
 # (None: read-only) for axis ``a``, None on a board row; a board row's kernel slots are
@@ -146,7 +165,7 @@ class Store:
     per_axis = False
     function = False
 
-    def bind(self, dev, a, kind) -> tuple[Callable, Callable | None]:
+    def bind(self, dev, a, kind, where: str = "") -> tuple[Callable, Callable | None]:
         raise NotImplementedError
 
 
@@ -161,7 +180,7 @@ class C(Store):
     slot: int
     writable = True
 
-    def bind(self, dev, a, kind):
+    def bind(self, dev, a, kind, where=""):
         st, i, slot = dev.st, _slot_axis(a), self.slot
 
         def set_(v):
@@ -178,7 +197,7 @@ class _Slot(Store):
     slot: int
     writable: bool = False
 
-    def bind(self, dev, a, kind):
+    def bind(self, dev, a, kind, where=""):
         st, name, i, slot = dev.st, self.ARRAY, _slot_axis(a), self.slot
 
         def set_(v):
@@ -217,7 +236,7 @@ class Key(Store):
     writable: bool = True
     per_axis = True
 
-    def bind(self, dev, a, kind):
+    def bind(self, dev, a, kind, where=""):
         ax, key = dev._axis[a], self.key
 
         def set_(v):
@@ -232,7 +251,7 @@ class Board(Store):
     key: str
     writable: bool = True
 
-    def bind(self, dev, a, kind):
+    def bind(self, dev, a, kind, where=""):
         board, key = dev._board, self.key
 
         def set_(v):
@@ -246,7 +265,7 @@ class Attr(Store):
 
     name: str
 
-    def bind(self, dev, a, kind):
+    def bind(self, dev, a, kind, where=""):
         name = self.name
         return (lambda: kind(getattr(dev, name))), None
 
@@ -257,36 +276,103 @@ class Const(Store):
 
     value: Any
 
-    def bind(self, dev, a, kind):
+    def bind(self, dev, a, kind, where=""):
         value = kind(self.value)
         return (lambda: value), None
 
 
 @dataclass(frozen=True)
 class Get(Store):
-    """A reading computed by a method of the device, by name: ``dev.<method>(a)`` on an
-    axis row, ``dev.<method>()`` on a board row; read-only."""
+    """A reading computed by a method of the device, by name: ``dev.<method>(a, *args)`` on
+    an axis row, ``dev.<method>(*args)`` on a board row; read-only."""
 
     method: str
+    args: tuple = ()
 
-    def bind(self, dev, a, kind):
+    def bind(self, dev, a, kind, where=""):
         fn = getattr(dev, self.method)
-        if a is None:
-            return (lambda: kind(fn())), None
-        return (lambda: kind(fn(a))), None
+        args = self.args if a is None else (a, *self.args)
+        return (lambda: kind(fn(*args))), None
 
 
 @dataclass(frozen=True)
 class Call(Store):
     """A function of the firmware: a method of the device, by name, called as
-    ``dev.<method>(a, *args)`` on an axis row, ``dev.<method>(*args)`` on a board row."""
+    ``dev.<method>(a, *bound, *args)`` on an axis row, ``dev.<method>(*bound, *args)`` on a
+    board row (``bound``: the row's own arguments, ``args``: the call's)."""
 
     method: str
+    bound: tuple = ()
     function = True
 
-    def bind(self, dev, a, kind):
+    def bind(self, dev, a, kind, where=""):
         fn = getattr(dev, self.method)
-        return (fn if a is None else functools.partial(fn, a)), None
+        head = self.bound if a is None else (a, *self.bound)
+        return (functools.partial(fn, *head) if head else fn), None
+
+
+_INT_BITS = {"int8": (8, True), "uint8": (8, False), "int16": (16, True), "uint16": (16, False),
+             "int32": (32, True), "uint32": (32, False), "int64": (64, True), "uint64": (64, False),
+             "endpoint_ref": (32, False)}
+
+
+def c_value(codec: str, value):
+    """``value`` as the firmware's member of type ``codec`` holds it: C's conversion of an
+    integer to the member's width (``uint8 axis_to_mirror = -1`` reads 255)."""
+    spec = _INT_BITS.get(codec)
+    if spec is None or isinstance(value, bool):
+        return value
+    bits, signed = spec
+    v = int(value) % (1 << bits)
+    return v - (1 << bits) if signed and v >= 1 << (bits - 1) else v
+
+
+def _same(kind, a, b) -> bool:
+    """Equal as the firmware stores them (floats as float32, NaN equal to NaN)."""
+    if kind is float:
+        pack = struct.Struct("<f").pack
+        try:
+            return pack(float(a)) == pack(float(b))
+        except OverflowError:
+            return float(a) == float(b)
+    return a == b
+
+
+@dataclass(frozen=True)
+class Setting(Store):
+    """A setting the device holds as the firmware does (``dev._settings[a][key]``, ``a``
+    None on a board row), saved with the configuration when its path is a configuration
+    path and reset to the firmware's default by a boot (volatile) or an erase.
+
+    ``only``: the model honours only the firmware's default; another value raises
+    :class:`UnmodeledError` naming the endpoint and ``reason``. ``reader``: ``(method,
+    args)`` of a device method that computes the reading instead of the stored value (a
+    counter the host may also write).
+    """
+
+    key: str
+    only: bool = False
+    reason: str = ""
+    reader: tuple | None = None
+    codec: str = ""
+    writable = True
+
+    def bind(self, dev, a, kind, where=""):
+        values, key, only, reason, codec = dev._settings[a], self.key, self.only, self.reason, self.codec
+
+        def set_(v):
+            v = c_value(codec, v)
+            if only:
+                honoured = dev._setting_default(a, key)
+                if not _same(kind, v, honoured):
+                    raise UnmodeledError(f"{where or key} = {v!r}: {reason}; the virtual ODrive "
+                                         f"accepts only the firmware's default {kind(honoured)!r}")
+            values[key] = v
+        if self.reader is not None:
+            fn = getattr(dev, self.reader[0])
+            args = self.reader[1] if a is None else (a, *self.reader[1])
+            return (lambda: kind(fn(*args))), set_
+        return (lambda: kind(values[key])), set_
 
 
 # ---------------------------------------------------------------------------------------
@@ -330,7 +416,8 @@ class Endpoint:
         if not all(parts) or numbered or "axis*" in parts[1:] or parts == ["axis*"]:
             raise ValueError(f"{where}: a path of the firmware's table, 'axis*' for the axes")
         if not isinstance(self.store, Store):
-            raise TypeError(f"{where}: store must be a row kind (C, S, I, Err, Key, Board, Attr, Const, Get, Call)")
+            raise TypeError(f"{where}: store must be a row kind (C, S, I, Err, Key, Board, Attr, Const, Get, "
+                            f"Call, Setting)")
         if self.store.per_axis and not self.per_axis:
             raise ValueError(f"{where}: {type(self.store).__name__} is per axis: the path must start with 'axis*.'")
         if not self.function and self.kind not in (float, int, bool):
@@ -372,7 +459,7 @@ class Endpoint:
     def bind(self, dev, a, where: str):
         """The tree's member of this row on ``dev`` for axis ``a`` (None: board): a
         :class:`_Prop`, or the function to call. ``where`` names it in messages."""
-        get, set_ = self.store.bind(dev, a, self.kind)
+        get, set_ = self.store.bind(dev, a, self.kind, where)
         if self.function:
             return get
         if self.setter is not None:
@@ -380,7 +467,7 @@ class Endpoint:
             set_ = special if a is None else functools.partial(special, a)
         if set_ is not None and self.check is not None:
             set_ = functools.partial(_checked, self.check, where, set_)
-        return _Prop(get, set_, self.kind)
+        return _Prop(get, set_, self.kind, nan_ok=isinstance(self.store, Setting))
 
 
 def _checked(check, where, set_, value):

@@ -9,18 +9,16 @@ over it (``odrive.runtime_device.RuntimeDevice``, ``odrive.sync_tree.SyncObject`
 virtual and a USB ODrive are the same kind of Python object: ``odrv.axis0.controller.config.
 pos_gain``, ``odrv.save_configuration()`` and ``odrive.utils.dump_errors(odrv)`` behave alike.
 
-Every endpoint of the table resolves:
+Every endpoint of the table resolves onto the firmware model's tree: its own rows
+(:data:`leglib.device.virtual.firmware.ENDPOINTS`) and, for every other endpoint, the
+catalog's (:mod:`leglib.device.virtual.catalog`: settings stored as the firmware stores them,
+derived readings, and what the model refuses, with the reason); the firmware identity
+(``fw_version_*``) is that of the table served. :func:`endpoint_coverage` lists them.
 
-- endpoints the firmware model implements (the rows of its table,
-  :data:`leglib.device.virtual.firmware.ENDPOINTS`, built into its tree) are read, written
-  and called there, each one USB transaction on the virtual clock;
-- the firmware identity (``fw_version_*``) is that of the table served;
-- every other endpoint is *unmodeled*: it holds the firmware's default value
-  (:func:`firmware_defaults`, extracted from the firmware's sources, else zero), a write that changes it warns once per device
-  (:class:`UnmodeledEndpointWarning`, naming it) because the real device would change its
-  behaviour, and calling an unmodeled function that acts on the device raises
-  ``NotImplementedError`` naming it (queries in :data:`UNMODELED_QUERIES` return zeros).
-  :func:`endpoint_coverage` lists which is which.
+Each endpoint operation costs what the firmware's protocol costs (fibre's legacy protocol,
+legacy_protocol.cpp:456-497: one request-response per endpoint): a property read or write
+is one USB transaction, a function call one per input argument, one for the trigger and one
+per output (legacy_object_client.cpp:668-685).
 
 :func:`find_any` (exported as :func:`leglib.device.virtual.wire.find_any`) keeps one virtual
 device per serial number for the life of the process. When the device reboots (its
@@ -39,20 +37,21 @@ import json
 import struct
 import threading
 import time as _time
-import warnings
 from dataclasses import dataclass, field
 from importlib import resources
 
 from odrive.async_tree import AsyncObject
-from odrive.libodrive import DeviceLostException, DeviceType, DiscoveryInfo
+from odrive.hw_version import HwVersion
+from odrive.libodrive import Device, DeviceLostException, DeviceType, DiscoveryInfo, Interface, InterfaceType
 from odrive.runtime_device import RuntimeDevice
 from odrive.sync_tree import SyncObject
 
 from ... import checks
 from ...errors import DeviceLostError, ParameterError
 from ...params import PlantParams, load_plant
-from .firmware import VirtualODrive
-from .tree import Endpoint, Leaf, model_paths
+from .board import HW_VERSION as _HW_VERSION
+from .firmware import BOOT_TIME, VirtualODrive
+from .tree import Endpoint, Leaf, UnmodeledError, model_paths
 
 FIRMWARE_TABLES = {"0.5.1": "endpoints_fw-v0.5.1.json", "0.5.6": "endpoints_fw-v0.5.6.json"}
 FIRMWARE_ALIASES = {"0.5": "0.5.6"}
@@ -62,24 +61,8 @@ SERIAL_BASE = 0x3A7F1E2D4B00  # the model's serial_number is SERIAL_BASE + seed
 _FORMATS = {"int8": "b", "uint8": "B", "int16": "h", "uint16": "H", "int32": "i", "uint32": "I",
             "int64": "q", "uint64": "Q", "bool": "?", "float": "f", "endpoint_ref": "I"}
 
-# Defaults of unmodeled endpoints: the firmware's configuration defaults, extracted from its
-# sources (leglib/device/virtual/tables/defaults_fw-v*.json, by leglib/device/virtual/tables/extract_defaults.py, each
-# with its file:line), then these, else zero.
-EXTRA_DEFAULTS = {
-    "hw_version_variant": 24,   # the 24 V board variant, as the twin's bus (hw_version.py: v3.6-24V)
-}
-
-# functions that only read something: unmodeled, they return zeros instead of raising
-UNMODELED_QUERIES = {"test_function", "get_oscilloscope_val", "oscilloscope.get_val", "get_adc_voltage",
-                     "get_interrupt_status", "get_dma_status", "get_gpio_states", "get_drv_fault",
-                     "axis*.controller.get_anticogging_value"}
-
 # the firmware identity endpoints, answered from the table served
 _IDENTITY = ("fw_version_major", "fw_version_minor", "fw_version_revision", "fw_version_unreleased")
-
-
-class UnmodeledEndpointWarning(UserWarning):
-    """A write to an endpoint the virtual ODrive holds but does not model changed its value."""
 
 
 class VirtualDeviceLost(DeviceLostException, DeviceLostError):
@@ -138,7 +121,8 @@ _DEFAULTS_CACHE: dict[str, dict] = {}
 def firmware_defaults(firmware: str = "0.5.6") -> dict:
     """``{"axis*.motor.config.calibration_current": {"value": 10.0, "source":
     "Firmware/MotorControl/motor.hpp:20"}, ...}``: the configuration defaults of
-    ``firmware``, from its sources (ODrive v3.6, 24 V)."""
+    ``firmware``, from its sources (ODrive v3.6, 56 V: the board presented). Defaults that
+    differ by axis carry ``"axes": [axis0, axis1]``."""
     version = normalize_firmware(firmware)
     if version not in _DEFAULTS_CACHE:
         raw = resources.files("leglib.device.virtual.tables").joinpath(f"defaults_fw-v{version}.json").read_text()
@@ -186,11 +170,12 @@ class _Endpoint:
     kind: str            # "property" or "function"
     codec: str           # property codec, or "function"
     writable: bool
-    source: str          # "model", "identity" or "unmodeled"
+    source: str          # "model", "identity" or "unmodeled" (no row: an error at use)
     node: object = None  # the model's _Node holding it (source "model")
     leaf: str = ""
     row: Endpoint = None  # the model's row (source "model")
     outputs: tuple = ()
+    n_inputs: int = 0
 
 
 def _build_endpoints(leaves: dict, version: str) -> dict[int, _Endpoint]:
@@ -201,7 +186,8 @@ def _build_endpoints(leaves: dict, version: str) -> dict[int, _Endpoint]:
         kind = "function" if e["type"] == "function" else "property"
         ep = _Endpoint(path=path, id=e["id"], kind=kind, codec=e["type"],
                        writable="w" in e.get("access", ""), source="unmodeled",
-                       outputs=tuple(o["type"] for o in e.get("outputs", ())))
+                       outputs=tuple(o["type"] for o in e.get("outputs", ())),
+                       n_inputs=len(e.get("inputs", ())))
         if kind == "property" and path in _IDENTITY:
             ep.source = "identity"
         else:
@@ -218,14 +204,17 @@ def endpoint_coverage(sim=None, firmware: str = "0.5.6") -> dict:
 
     Returns
     -------
-    dict with lists of endpoint paths: ``"model"`` (answered by the model), ``"identity"``
-    (firmware version, from the table), ``"unmodeled"`` (held at the firmware default).
+    dict with lists of endpoint paths: ``"model"`` (answered by the model: its own rows and
+    the catalog's), ``"identity"`` (firmware version, from the table), ``"unmodeled"`` (no
+    row: empty when the catalog covers the table).
     """
+    from .catalog import fill  # load time: the catalog reads these tables
     version = normalize_firmware(firmware)
     if sim is not None:
         leaves = sim._leaves
     else:
-        rows = model_paths(VirtualODrive.endpoints, _model_firmware(version))
+        own = VirtualODrive.endpoints
+        rows = model_paths(tuple(own) + fill(own, _model_firmware(version)), _model_firmware(version))
         leaves = {path: Leaf(None, path.rpartition(".")[2], row) for path, (_, row) in rows.items()}
     out = {"model": [], "identity": [], "unmodeled": []}
     for ep in _build_endpoints(leaves, version).values():
@@ -252,63 +241,140 @@ def _boot_count(sim) -> int:
 
 @dataclass
 class _Record:
-    """One virtual ODrive of the process: the model, its table and the held endpoints."""
+    """One virtual ODrive of the process: the model and its table."""
 
     sim: object
     version: str
     serial: int
     args: dict
-    held: dict = field(default_factory=dict)        # unmodeled endpoint values (live)
-    saved_held: dict = field(default_factory=dict)  # ... as last saved to "flash"
-    warned: set = field(default_factory=set)
     handle: object = None                           # the client object of the current boot
     handle_boot: int = -1
     link: int = 0                                   # re-plugs after a lost link
     handle_link: int = -1
     lock: threading.RLock = field(default_factory=threading.RLock)
 
-    def default(self, path: str, codec: str):
-        hit = firmware_defaults(self.version).get(_generic(path))
-        if hit is not None:
-            value = hit["value"]
-            if codec not in ("float", "bool") and isinstance(value, (int, float)):
-                # C's conversion to the member's type: uint8 axis_to_mirror = -1 reads 255
-                fmt = "<" + _FORMATS[codec]
-                bits = 8 * struct.calcsize(fmt)
-                value = int(value) % (1 << bits)
-                if fmt[1].islower() and value >= 1 << (bits - 1):
-                    value -= 1 << bits
-            return value
-        if path in EXTRA_DEFAULTS:
-            return EXTRA_DEFAULTS[path]
-        return False if codec == "bool" else 0.0 if codec == "float" else 0
 
-    def reboot_held(self):
-        """After a reboot: unmodeled values are the defaults, saved configuration applied."""
-        self.held = dict(self.saved_held)
+class VirtualInterface(Interface):
+    """The virtual ODrives' "USB port": an interface of the client's device manager
+    (``odrive.device_manager``) on which every virtual ODrive of the process is discovered
+    as a USB ODrive is on libusb's -- found when it answers, lost when it resets (a save, a
+    reboot, an erase), found again once it has booted. So the client's own discovery and
+    connection paths run on it: ``device_manager.wait_for``, odrivetool's
+    ``call_rebooting_function`` (restore_config), the liveplotter's recorder.
 
+    All its methods run on the device manager's event loop."""
 
-class _Interface:
-    """What the client reads from a transport: its type (neither USB nor CAN) and that it is open."""
-
-    interface_type = 0
-    open = True
-    discovering = False
+    def __init__(self):
+        super().__init__(None, InterfaceType.USB, "virtual ODrive")
+        self._handle = 1          # always open: there is no libusb handle behind it
+        self._devices: dict[int, VirtualUSBDevice] = {}
+        self._records: dict[int, _Record] = {}
 
     def __repr__(self):
-        return "Interface(virtual)"
+        return "Interface(virtual ODrive)"
+
+    def close(self):
+        self._delegate = None     # the device manager released it; it stays usable
+
+    def start_discovery(self, delegate):
+        self._delegate = delegate
+        for record in list(self._records.values()):
+            self.sync(record)
+
+    def stop_discovery(self):
+        self._delegate = None
+
+    def _known(self, dev) -> bool:
+        return dev in getattr(self._delegate, "_device_metadata", {})
+
+    def sync(self, record: _Record):
+        """Bring the device manager up to date with ``record``'s device: its old boot lost,
+        its current boot found once the board answers."""
+        self._records[record.serial] = record
+        dev = self._devices.get(record.serial)
+        if dev is not None and not dev.is_present:
+            del self._devices[record.serial]
+            known = self._known(dev)
+            dev._on_lost()
+            if known and self._delegate is not None:
+                self._delegate.on_lost_device(self, dev)
+            dev = None
+        if dev is None and _answers(record):
+            dev = self._devices[record.serial] = VirtualUSBDevice(record, self)
+        if dev is not None and self._delegate is not None and not self._known(dev):
+            self._delegate.on_found_device(self, dev)
+
+    def forget(self, serial: int):
+        self._records.pop(serial, None)
+        dev = self._devices.pop(serial, None)
+        if dev is not None and self._known(dev) and self._delegate is not None:
+            dev._on_lost()
+            self._delegate.on_lost_device(self, dev)
+
+    async def booted(self, record: _Record):
+        """After a reset: let the board boot (its virtual time; real time too when paced)
+        and report it found again, as libusb reports a board that re-enumerates."""
+        loop = asyncio.get_running_loop()
+        await loop.run_in_executor(None, _boot_wait, record)
+        self.sync(record)
 
 
-class VirtualUSBDevice:
-    """A ``odrive.libodrive.Device`` look-alike that answers endpoint ids from the firmware
-    model of one boot of a virtual ODrive.
+def _answers(record: _Record) -> bool:
+    """Whether ``record``'s board answers on USB now (booted, link up)."""
+    sim = record.sim
+    if getattr(sim, "lost", False):
+        return False
+    booted = getattr(sim, "_booted_at", None)
+    return booted is None or sim.time >= booted + BOOT_TIME
+
+
+# [s] of wall time without the virtual clock moving after which the device manager's
+# thread lets a rebooting board's boot pass itself (nobody else is driving the model)
+_IDLE_BOOT_WAIT = 0.5
+
+
+def _boot_wait(record: _Record):
+    """Wait (on an executor thread) until ``record``'s board answers again after a reset.
+    Whoever drives the model -- a script's own calls, ``find_any``'s reconnect -- moves its
+    clock through the boot; this thread only watches, so the virtual timeline does not
+    depend on thread timing. Only if the clock stands still for a while (the script waits
+    on the device manager: ``call_rebooting_function``, ``restore_config_ui``, odrivetool's
+    shell) does it let the boot pass itself, under the device's lock."""
+    sim = record.sim
+    still_since, last = _time.monotonic(), sim.time
+    while not getattr(sim, "lost", False) and not _answers(record):
+        now = _time.monotonic()
+        if sim.time != last:
+            still_since, last = now, sim.time
+        elif now - still_since > _IDLE_BOOT_WAIT:
+            with record.lock:
+                if not getattr(sim, "lost", False) and not _answers(record) and sim.time == last:
+                    sim.reconnect()
+            still_since, last = _time.monotonic(), sim.time
+        _time.sleep(0.002)
+
+
+# what the client reads when it connects a device (odrive 0.6.11 runtime_device.py:81-124,
+# attach_metadata; commit_hash and otp_valid are not in a 0.5.x table): the enumeration's
+# own reads, inside the boot's time
+_ATTACH_READS = frozenset({"hw_version_major", "hw_version_minor", "hw_version_variant",
+                           "fw_version_major", "fw_version_minor", "fw_version_revision"})
+
+
+class VirtualUSBDevice(Device):
+    """A ``odrive.libodrive.Device`` that answers endpoint ids from the firmware model of
+    one boot of a virtual ODrive (the client's own device class, its libodrive calls
+    replaced by the model).
 
     Parameters
     ----------
-    record : the device record (model, table version, held endpoint values)
+    record : the device record (model, table version)
+    interface : the interface it is found on
     """
 
-    def __init__(self, record: _Record):
+    def __init__(self, record: _Record, interface: VirtualInterface | None = None):
+        info = DiscoveryInfo(device_type=DeviceType.RUNTIME, serial_number=f"{record.serial:012X}")
+        Device.__init__(self, None, 1, info, interface)
         self._record = record
         self._sim = record.sim
         self._boot = _boot_count(record.sim)
@@ -316,11 +382,6 @@ class VirtualUSBDevice:
         self._endpoints = _build_endpoints(record.sim._leaves, record.version)
         self._raw_json, _ = _table_raw(record.version)
         self._crc = _crc16(self._raw_json)
-        self.info = DiscoveryInfo(device_type=DeviceType.RUNTIME, serial_number=f"{record.serial:012X}")
-        self.interface = _Interface()
-        self.hw_version = None
-        self.on_disconnected = None
-        self._connected = False
 
     def __repr__(self):
         return f"VirtualUSBDevice(serial_number={self.info.serial_number}, firmware={self._record.version})"
@@ -333,8 +394,11 @@ class VirtualUSBDevice:
 
     @property
     def is_present(self) -> bool:
-        return (_boot_count(self._sim) == self._boot and self._link == self._record.link
+        return (bool(self._handle) and _boot_count(self._sim) == self._boot and self._link == self._record.link
                 and not getattr(self._sim, "lost", False))
+
+    def drop(self):
+        self._handle = 0
 
     def _alive(self):
         if _boot_count(self._sim) != self._boot:
@@ -354,6 +418,12 @@ class VirtualUSBDevice:
     async def connect(self, node_id=None, baudrate=None) -> None:
         self._alive()
         self._connected = True
+        self.hw_version = HwVersion(*_HW_VERSION)
+        # The client's connection reads the identity once (attach_metadata). The device
+        # manager may run it on its own thread while the script runs on (after a reboot,
+        # rediscovery is asynchronous), so charging it to the virtual clock would make the
+        # numbers depend on thread timing: those reads are free, part of the boot's time.
+        self._attach_pending = set(_ATTACH_READS)
 
     def disconnect(self):
         self._connected = False
@@ -374,35 +444,30 @@ class VirtualUSBDevice:
         return ep
 
     def _read_one(self, ep: _Endpoint):
+        pending = getattr(self, "_attach_pending", ())
+        if ep.path in pending:
+            pending.discard(ep.path)
+            if ep.source == "model":
+                return self._model(lambda: ep.node._props[ep.leaf].get())
+            v = _version_tuple(self._record.version)
+            return {"fw_version_major": v[0], "fw_version_minor": v[1], "fw_version_revision": v[2]}[ep.path]
         if ep.source == "model":
             return self._model(lambda: getattr(ep.node, ep.leaf))
-        self._transaction()
         if ep.source == "identity":
+            self._transaction()
             v = _version_tuple(self._record.version)
             return {"fw_version_major": v[0], "fw_version_minor": v[1], "fw_version_revision": v[2],
                     "fw_version_unreleased": 0}[ep.path]
-        rec = self._record
-        return rec.held.get(ep.path, rec.default(ep.path, ep.codec))
+        raise UnmodeledError(f"virtual ODrive (firmware {self._record.version}): {ep.path} has no row")
 
     def _write_one(self, ep: _Endpoint, value):
         if ep.source == "model":
             if not ep.row.writable:
-                raise NotImplementedError(f"virtual ODrive: writing {ep.path} is not modeled (the "
-                                          f"firmware accepts it)")
+                raise AttributeError(f"{ep.path} is read-only")
             return self._model(lambda: setattr(ep.node, ep.leaf, value))
         if ep.source == "identity":
             raise AttributeError(f"{ep.path} is read-only")
-        self._transaction()
-        rec = self._record
-        old = rec.held.get(ep.path, rec.default(ep.path, ep.codec))
-        fmt = "<" + _FORMATS[ep.codec]
-        old = struct.unpack(fmt, struct.pack(fmt, self._to_wire(ep.codec, old)))[0]  # as on the wire
-        if value != old and ep.path not in rec.warned:
-            rec.warned.add(ep.path)
-            warnings.warn(f"virtual ODrive: {ep.path} is not modeled; the value {value!r} is held "
-                          f"but changes nothing in the simulated device (the real ODrive would act "
-                          f"on it)", UnmodeledEndpointWarning, stacklevel=2)
-        rec.held[ep.path] = value
+        raise UnmodeledError(f"virtual ODrive (firmware {self._record.version}): {ep.path} has no row")
 
     def _transaction(self):
         tx = getattr(self._sim, "_transaction", None)
@@ -448,30 +513,19 @@ class VirtualUSBDevice:
             ep = self._endpoint(endpoint_id, "function")
             args = struct.unpack(in_format, struct.pack(in_format, *args))  # the wire's conversions
             n_out = len(struct.unpack(out_format, bytes(struct.calcsize(out_format))))
-            if ep.source == "model":
-                boot = _boot_count(self._sim)
-                saving = {k: v for k, v in self._record.held.items()
-                          if ".config." in k or k.startswith("config.")}
-                result = False
-                try:
-                    result = self._model(lambda: getattr(ep.node, ep.leaf)(*args))
-                    wrote = result is not False    # True, or None on 0.5.1 (no return value)
-                except Exception:
-                    wrote = False
-                    raise
-                finally:
-                    # flash is written also when the board resets inside the call (0.5.2+)
-                    if ep.path == "save_configuration" and (wrote or _boot_count(self._sim) != boot):
-                        self._record.saved_held = saving
-            elif _generic(ep.path) in UNMODELED_QUERIES:
+            if ep.source != "model":
+                raise UnmodeledError(f"virtual ODrive (firmware {self._record.version}): {ep.path}() has no row")
+            # legacy_object_client.cpp:668-685: each input argument is written to its own
+            # endpoint, then the trigger (the model's call, one transaction), then each
+            # output is read from its own endpoint
+            for _ in range(ep.n_inputs):
                 self._transaction()
-                result = tuple(0 for _ in range(n_out))
-            else:
-                raise NotImplementedError(f"virtual ODrive (firmware {self._record.version}): "
-                                          f"{ep.path}() is not modeled")
+            result = self._model(lambda: getattr(ep.node, ep.leaf)(*args))
             if _boot_count(self._sim) != self._boot:
                 # the firmware resets inside the call (NVIC_SystemReset): no response comes back
                 raise VirtualDeviceLost(self, f"{ep.path}() rebooted the virtual ODrive")
+            for _ in range(n_out):
+                self._transaction()
             if n_out == 0:
                 return ()
             values = result if isinstance(result, tuple) else (result,)
@@ -483,37 +537,91 @@ class VirtualUSBDevice:
 
 
 # ---------------------------------------------------------------------------------------
-# the client's event loop, the registry and find_any
+# the client's device manager, the registry and find_any
 # ---------------------------------------------------------------------------------------
 
-_LOOP = None
-_LOOP_LOCK = threading.Lock()
 _REGISTRY: dict[int, _Record] = {}
 _REGISTRY_LOCK = threading.RLock()
+_INTERFACES: dict[int, VirtualInterface] = {}     # id(device manager) -> its virtual interface
 
 
-def _client_loop() -> asyncio.AbstractEventLoop:
-    """The background event loop the client objects of virtual devices run on."""
-    global _LOOP
-    with _LOOP_LOCK:
-        if _LOOP is None:
-            loop = asyncio.new_event_loop()
-            threading.Thread(target=loop.run_forever, name="leglib-virtual-odrive", daemon=True).start()
-            _LOOP = loop
-    return _LOOP
+def _manager():
+    """The client's global device manager (``odrive.device_manager.get_device_manager``:
+    a background thread with its event loop in a script, the shell's loop in IPython) and
+    the virtual interface registered with it."""
+    from odrive._internal_utils import get_current_loop  # load time: the client's device manager
+    from odrive.device_manager import get_device_manager  # load time: the client's device manager
+    loop = get_current_loop()
+    if loop is not None and not hasattr(loop, "_nest_patched"):
+        import odrive._nest_asyncio  # load time: only in a shell's running loop (as odrive.find_sync does)
+        odrive._nest_asyncio.apply(loop)
+    dm = get_device_manager()
+    intf = _INTERFACES.get(id(dm))
+    if intf is None:
+        intf = _INTERFACES[id(dm)] = VirtualInterface()
+    return dm, intf
+
+
+def _register(dm, intf: VirtualInterface):
+    """Register the interface with the device manager (again, after it released it when
+    its last device was lost: the client closes an unused interface)."""
+    if intf not in dm._interface_metadata:
+        dm._add_intf(intf, "virtual", lambda i: i.close())
+
+
+def _on_loop(dm, make_coro):
+    from odrive._internal_utils import run_on_loop  # load time: the client's device manager
+
+    async def run():
+        return await make_coro()
+    return run_on_loop(run(), dm.loop)
+
+
+def _on_reset(sim):
+    """The model's reset hook: tell the device manager, on its loop, that the board went
+    away, and bring it back once it has booted."""
+    with _REGISTRY_LOCK:
+        record = next((r for r in _REGISTRY.values() if r.sim is sim), None)
+    if record is None:
+        return
+    for dm_id, intf in list(_INTERFACES.items()):
+        dm = _dm_alive(dm_id)
+        if dm is None:
+            continue
+        def schedule(intf=intf):
+            intf.sync(record)
+            asyncio.ensure_future(intf.booted(record))
+        try:
+            dm.loop.call_soon_threadsafe(schedule)
+        except RuntimeError:     # the device manager was closed
+            pass
+
+
+def _dm_alive(dm_id: int):
+    import odrive.device_manager as m  # load time: the client's device manager
+    dm = m._global_device_manager
+    return dm if dm is not None and id(dm) == dm_id else None
 
 
 def _connect_client(record: _Record):
-    """A fresh client object tree over the current boot of ``record``'s device."""
-    if _boot_count(record.sim) != record.handle_boot and record.handle_boot >= 0:
-        record.reboot_held()
-    device = VirtualUSBDevice(record)
-    fut = asyncio.run_coroutine_threadsafe(RuntimeDevice.from_device(device, json_cache=None), _client_loop())
-    runtime = fut.result()
+    """The client's object over the current boot of ``record``'s device, as the client's
+    device manager finds and connects it."""
+    from odrive.device_manager import RuntimeDevice as _RD  # load time: the client's device manager
+    dm, intf = _manager()
+    hooks = record.sim.__dict__.setdefault("_reset_hooks", [])
+    if _on_reset not in hooks:
+        hooks.append(_on_reset)
+
+    async def connect():
+        intf.sync(record)           # (a lost device's bookkeeping may release the interface)
+        _register(dm, intf)
+        return await dm.wait_for(interfaces=[intf], serial_number=f"{record.serial:012X}", return_type=_RD)
+    runtime = _on_loop(dm, connect)
     record.handle = runtime.sync_wrapper
-    record.handle_boot = device._boot
-    record.handle_link = device._link
+    record.handle_boot = runtime.device._boot
+    record.handle_link = runtime.device._link
     return record.handle
+
 
 
 def serial_for_seed(seed: int) -> int:
@@ -643,9 +751,21 @@ def _is_runtime(obj) -> bool:
 
 def forget(serial_number=None) -> None:
     """Drop virtual devices from the process registry (all, or one serial number): the
-    next :func:`find_any` builds a fresh one. Old handles keep working on the old model."""
+    next :func:`find_any` builds a fresh one. Their client objects are lost, as a board's
+    when it is unplugged (the client's device manager forgets them)."""
     with _REGISTRY_LOCK:
         if serial_number is None:
+            serials = list(_REGISTRY)
             _REGISTRY.clear()
         else:
-            _REGISTRY.pop(_parse_serial(serial_number), None)
+            serial = _parse_serial(serial_number)
+            serials = [serial] if _REGISTRY.pop(serial, None) is not None else []
+    for dm_id, intf in list(_INTERFACES.items()):
+        dm = _dm_alive(dm_id)
+        if dm is None or not serials:
+            continue
+
+        async def retire(intf=intf):
+            for serial in serials:
+                intf.forget(serial)
+        _on_loop(dm, retire)

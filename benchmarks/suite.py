@@ -1,0 +1,62 @@
+"""The test suite's wall and CPU time on a fresh clone (numba's cache empty), with this
+environment's packages (no new venv: ``make test`` on a fresh clone also builds one).
+
+    .venv/bin/python -m benchmarks.suite [pytest arguments]    # default: -n auto --dist loadgroup
+
+The clone is of the committed HEAD (uncommitted changes are not in it) into a temporary
+directory, removed afterwards. The CPU time is the clone's pytest and everything it waited
+for (workers, notebook kernels, browsers, the wheel's environment); on a machine other
+processes load, the wall time depends on them: the load average before and after is shown.
+Not part of ``make bench``: one run takes the suite's time (minutes), and it is one run, not
+a median.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+TARGET_S = 300.0
+
+
+def main(argv: list[str]) -> int:
+    args = argv or ["-n", "auto", "--dist", "loadgroup"]
+    with tempfile.TemporaryDirectory(prefix="leglib-suite-") as tmp:
+        clone = Path(tmp) / "leglib"
+        subprocess.run(["git", "clone", "-q", str(REPO), str(clone)], check=True)
+        head = subprocess.run(["git", "-C", str(clone), "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, check=True).stdout.strip()
+        env = {**os.environ, "PYTHONPATH": str(clone), "MPLBACKEND": "Agg"}
+        env.pop("NUMBA_CACHE_DIR", None)   # the clone's own (empty) cache beside its sources
+        load0 = os.getloadavg()
+        c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t0 = time.perf_counter()
+        proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *args], cwd=clone,
+                              env=env, capture_output=True, text=True)
+        wall = time.perf_counter() - t0
+        c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        load1 = os.getloadavg()
+    cpu = (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)
+    summary = (proc.stdout.strip().splitlines() or [""])[-1]
+    result = {"commit": head, "args": args, "wall_s": wall, "cpu_s": cpu, "returncode": proc.returncode,
+              "summary": summary, "load_before": load0, "load_after": load1, "target_s": TARGET_S}
+    ok = "ok  " if proc.returncode == 0 and wall <= TARGET_S else "MISS"
+    print(f"[{ok}] suite on a fresh clone of {head}: {wall:.0f} s wall, {cpu:.0f} s CPU "
+          f"(target {TARGET_S:.0f} s); load average {load0[0]:.1f} before, {load1[0]:.1f} after; {summary}")
+    out = REPO / "benchmarks" / "results"
+    out.mkdir(exist_ok=True)
+    (out / "suite.json").write_text(json.dumps(result, indent=2))
+    if proc.returncode:
+        print(proc.stdout[-3000:], file=sys.stderr)
+    return 0 if proc.returncode == 0 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
