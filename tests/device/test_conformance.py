@@ -12,10 +12,6 @@ a turn, and what the bench cannot do (no hall sensors, no SPI encoder, no spinni
 sensorless) is refused by the twin at the request, naming why. Each docstring says what
 a real board does (file:line at fw-v0.5.6 of Firmware/ unless marked).
 
-Cases that exercise the control kernel's input modes owned by the twin's kernel work
-(VEL_RAMP, circular setpoints, move_incremental) assert the documented behaviour once the
-twin models it; until then the twin refuses them and the case is skipped, naming the
-refusal.
 """
 
 import math
@@ -92,14 +88,6 @@ def _closed_loop(odrv, ax):
     ax.requested_state = V.AXIS_STATE_CLOSED_LOOP_CONTROL
     _sleep(odrv, 0.3)
     assert ax.current_state == V.AXIS_STATE_CLOSED_LOOP_CONTROL, hex(ax.error)
-
-
-def _or_skip_refused(write):
-    """Run ``write``; a refusal of the twin (kernel work not on this branch) skips."""
-    try:
-        write()
-    except (UnmodeledError, ValueError) as exc:
-        pytest.skip(f"the twin refuses this yet: {exc}")
 
 
 # == docs/getting-started.rst ===============================================================
@@ -290,8 +278,12 @@ def test_control_modes_move_incremental():
     _closed_loop(odrv, ax)
     c.config.input_mode = TRAP_TRAJ
     goal = c.input_pos
-    _or_skip_refused(lambda: c.move_incremental(0.05, True))
+    c.move_incremental(0.05, True)
     assert c.input_pos == pytest.approx(goal + 0.05, abs=1e-6)
+    _sleep(odrv, 1.0)                                # the trajectory's end: the setpoint at its goal
+    assert c.trajectory_done and c.pos_setpoint == pytest.approx(goal + 0.05, abs=1e-6)
+    c.move_incremental(-0.02, False)
+    assert c.input_pos == pytest.approx(goal + 0.03, abs=1e-6)
 
 
 def test_control_modes_circular_setpoints():
@@ -299,7 +291,7 @@ def test_control_modes_circular_setpoints():
     [0, circular_setpoint_range) (controller.cpp:174-180)."""
     odrv = _calibrated(611)
     ax, c = odrv.axis0, odrv.axis0.controller
-    _or_skip_refused(lambda: setattr(c.config, "circular_setpoints", True))
+    c.config.circular_setpoints = True
     _closed_loop(odrv, ax)
     c.input_pos = ax.encoder.pos_circular + 1.0
     _sleep(odrv, 0.1)
@@ -322,7 +314,7 @@ def test_control_modes_velocity_and_ramped_velocity():
     c.input_vel = 0.0
     _sleep(odrv, 0.5)
     c.config.vel_ramp_rate = 0.5
-    _or_skip_refused(lambda: setattr(c.config, "input_mode", VEL_RAMP))
+    c.config.input_mode = VEL_RAMP
     c.input_vel = 1.0
     _sleep(odrv, 0.5)
     assert c.vel_setpoint == pytest.approx(0.25, abs=0.02)
