@@ -533,7 +533,9 @@ def _controller_update(k, b, a, dt, C, AS, AI, TT, tt_period, fw056):
         vel_des += C[b, a, C_POS_GAIN] * pos_err
         width = C[b, a, C_GAIN_SCHED_WIDTH]
         if C[b, a, C_EN_GAIN_SCHED] > 0.0 and abs(pos_err) <= width:
-            gs = abs(pos_err) / width
+            # width 0 reaches here only with pos_err 0: 0 / 0, NaN on the board (a float
+            # division; numba's would raise)
+            gs = abs(pos_err) / width if width != 0.0 else math.nan
     if en_vel_limit:                               # controller.cpp:325-329
         vel_des = clamp(vel_des, -vel_limit, vel_limit)
     if overspeed(C[b, a, C_EN_OVERSPEED] > 0.0, ve, vel_limit, C[b, a, C_VEL_TOL]):

@@ -361,6 +361,22 @@ def test_gain_scheduling():
     assert abs(S[L.S_IQ_SP] - _expected_iq_setpoint(odrv, 0, 0.0, 1.0)) > 0.1
 
 
+def test_gain_scheduling_width_zero_divides_zero_by_zero():
+    """controller.cpp:318-322 divides |pos_err| by gain_scheduling_width (any float the host
+    writes): at width 0 only pos_err 0 reaches the division, 0 / 0, NaN in the board's
+    float arithmetic. A fresh 0.5.6 board has it at once: its controller runs while IDLE on
+    unconnected estimates (0) against pos_setpoint 0. The twin's kernel computes the NaN (its
+    output torque) instead of raising; unconnected, the motor gets no current from it
+    (motor.cpp:515-518)."""
+    odrv = V.VirtualODrive(seed=36)
+    c = odrv.axis0.controller
+    c.config.enable_gain_scheduling = True
+    c.config.gain_scheduling_width = 0.0
+    odrv.sleep(0.01)
+    assert math.isnan(odrv.st.AS[0, 0, L.S_TQ_OUT]) and odrv.st.AS[0, 1, L.S_TQ_OUT] == 0.0
+    assert odrv.axis0.motor.current_control.Iq_setpoint == 0.0 and odrv.axis0.error == 0
+
+
 def test_current_lim_margin_and_requested_current_range():
     """motor.cpp:631-644: the trip is at the effective current limit + current_lim_margin,
     as configured (the default margin 8 A); motor.cpp:312-338: the IDLE loop sets the
