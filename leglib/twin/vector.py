@@ -51,6 +51,7 @@ from .layout import (
     C_REGEN_ERR_STYLE,
     C_RWL_FF,
     C_VBUS,
+    C_VBUS_CHECKS,
     C_WD_ENABLE,
     CONTROL_MODE_POSITION,
     CONTROLLER_ERROR_OVERSPEED,
@@ -218,9 +219,11 @@ def _vector_block(b0, b1, FR, C, AI):
     (configured, and armed or IDLE) with its inputs passed through, no watchdog, and the
     controller's optional features at their defaults (velocity limit and overspeed check
     on, no gain scheduling, no circular setpoints), a calibrated current controller without
-    feed-forwards or bus-current limits."""
+    feed-forwards or bus-current limits; and no bus-voltage trips to check (a bare Twin's,
+    or a virtual ODrive's step batch, which checks beforehand that they are out of reach:
+    kernel._board_checks is not on this path)."""
     for b in range(b0, b1):
-        if FR[b, F_ENC_ON] > 0.0:
+        if FR[b, F_ENC_ON] > 0.0 or C[b, 0, C_VBUS_CHECKS] > 0.0:
             return False
         for a in range(2):
             mode = AI[b, a, I_MODE]

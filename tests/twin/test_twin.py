@@ -423,6 +423,24 @@ def test_a_vectorized_block_gives_the_leg_by_leg_numbers():
         np.testing.assert_array_equal(getattr(vec, name), getattr(leg, name)[:B], err_msg=name)
 
 
+def test_a_block_whose_board_checks_its_bus_runs_leg_by_leg():
+    """kernel._board_checks (main.cpp:300-305: the bus voltage against its trip levels,
+    every tick in every state) is not on the vectorized path: legs whose board checks its
+    bus (a virtual ODrive's) take the leg-by-leg path, and trip there."""
+    tw = Twin(seed=4)
+    start = tw.step_batch(np.array([[20, 0.02, 0.01], [50, 0.046, 0.001]]), duration=0.0)["final"]
+    FR = np.ascontiguousarray(np.broadcast_to(tw.FR, (2, tw.FR.size)))
+    assert _vector_block(0, 2, FR, start.C, start.AI)
+    start.C[:, 0, L.C_VBUS_CHECKS] = 1.0
+    start.C[:, 0, L.C_OV_TRIP] = 100.0
+    start.C[1, 0, L.C_UV_TRIP] = start.C[1, 0, L.C_VBUS] + 0.5     # leg 1's bus is below its level
+    assert not _vector_block(0, 2, FR, start.C, start.AI)
+    tw.run(start, ticks=8)
+    assert start.AI[0, 0, L.I_SYS_ERR] == 0
+    assert start.AI[1, 0, L.I_SYS_ERR] & L.ODRIVE_ERROR_DC_BUS_UNDER_VOLTAGE
+    assert (start.AI[1, :, L.I_MODE] == L.MODE_IDLE).all()
+
+
 def test_leg_seeds_are_numpys_seed_sequence_for_every_leg():
     """Each leg's state is SeedSequence's for that leg's words, whatever the batch."""
     rng = np.random.default_rng(0)
