@@ -28,6 +28,8 @@ $(STAMP): environment.txt pyproject.toml
 	@# its output is shown in full only when the install fails
 	@out=$$($(BIN)/python -m pip install --quiet --no-deps -e . 2>&1) || { echo "$$out"; exit 1; }; \
 	  echo "leglib installed editable from $$(pwd) (setuptools' notice about a folder named like the package is about leglib/ itself)"
+	@# the numba kernels compiled now, with a line per group, not silently at their first use
+	$(BIN)/python -m leglib compile
 	touch $(STAMP)
 
 # System packages, installed with apt-get when missing and we are root (otherwise a warning):

@@ -7,8 +7,8 @@ The clone is of the committed HEAD (uncommitted changes are not in it) into a te
 directory, removed afterwards. The CPU time is the clone's pytest and everything it waited
 for (workers, notebook kernels, browsers, the wheel's environment); on a machine other
 processes load, the wall time depends on them: the load average before and after is shown.
-Not part of ``make bench``: one run takes the suite's time (minutes), and it is one run, not
-a median.
+``make bench`` runs it once (``bench_suite``): one run takes the suite's time (minutes), so
+it is one run, not a median.
 """
 
 from __future__ import annotations
@@ -20,21 +20,20 @@ import subprocess
 import sys
 import tempfile
 import time
-from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+from .fresh import REPO
+from .fresh import clone as fresh_clone
+from .fresh import env as fresh_env
+
 TARGET_S = 300.0
 
 
-def main(argv: list[str]) -> int:
+def run(argv: list[str]) -> dict:
+    """One run of the suite on a fresh clone; its figures (also in results/suite.json)."""
     args = argv or ["-n", "auto", "--dist", "loadgroup"]
     with tempfile.TemporaryDirectory(prefix="leglib-suite-") as tmp:
-        clone = Path(tmp) / "leglib"
-        subprocess.run(["git", "clone", "-q", str(REPO), str(clone)], check=True)
-        head = subprocess.run(["git", "-C", str(clone), "rev-parse", "--short", "HEAD"], capture_output=True,
-                              text=True, check=True).stdout.strip()
-        env = {**os.environ, "PYTHONPATH": str(clone), "MPLBACKEND": "Agg"}
-        env.pop("NUMBA_CACHE_DIR", None)   # the clone's own (empty) cache beside its sources
+        clone, head = fresh_clone(tmp)
+        env = fresh_env(clone)   # its own (empty) numba cache beside its sources: the suite compiles first
         load0 = os.getloadavg()
         c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.perf_counter()
@@ -55,7 +54,11 @@ def main(argv: list[str]) -> int:
     (out / "suite.json").write_text(json.dumps(result, indent=2))
     if proc.returncode:
         print(proc.stdout[-3000:], file=sys.stderr)
-    return 0 if proc.returncode == 0 else 1
+    return result
+
+
+def main(argv: list[str]) -> int:
+    return 0 if run(argv)["returncode"] == 0 else 1
 
 
 if __name__ == "__main__":

@@ -1,8 +1,6 @@
 import fcntl
 import os
 import shutil
-import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -18,34 +16,34 @@ from leglib.params import load_leg  # noqa: E402
 
 # -- the numba kernels compiled once, before the workers use them ---------------------------
 
-WARM_GROUPS = ("serial", "batch", "fit")   # tests/warm_kernels.py: no two compile the same kernel
 WARM_ENV = "LEGLIB_TEST_WARM_KERNELS"      # the file the controller writes when they are done
 WARM_TIMEOUT_S = 900
 
 
 def pytest_configure(config):
-    """Under pytest-xdist, the controller compiles the kernels (tests/warm_kernels.py, one
-    process per group) while the workers start and collect; each worker waits for them before
-    its first test (:func:`_warm_kernels`). Without this, on a fresh clone every worker and
-    every notebook kernel compiles the same kernels at the same time (a minute each): numba
-    writes its cache only when a compile ends. With a warm cache the processes only load
-    (a few seconds, beside the workers' start)."""
+    """Under pytest-xdist, the controller compiles the kernels (leglib.notebook.warmup, one
+    process per group) while the workers start and collect, unless they are current (``make
+    venv`` compiled them and no kernel source changed since); each worker waits for them
+    before its first test (:func:`_warm_kernels`). Without this, on a fresh clone every worker
+    and every notebook kernel compiles the same kernels at the same time (a minute each):
+    numba writes its cache only when a compile ends."""
     if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None) \
             or config.option.collectonly:
         return
+    import io
+
+    from leglib.notebook import warmup
+
     done = Path(tempfile.mkdtemp(prefix="leglib-warm-")) / "done"
     os.environ[WARM_ENV] = str(done)   # the workers inherit it
-    script = Path(__file__).with_name("warm_kernels.py")
-    procs = [subprocess.Popen([sys.executable, str(script), g], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                              text=True, cwd=config.rootpath) for g in WARM_GROUPS]
 
     def wait():
-        lines = []
-        for g, p in zip(WARM_GROUPS, procs):
-            out, _ = p.communicate()
-            lines.append(out.strip().splitlines()[-1] if p.returncode == 0 and out.strip() else
-                         f"warm_kernels {g}: FAILED ({p.returncode}): {out[-1500:]}")
-        done.with_suffix(".tmp").write_text("\n".join(lines) + "\n")
+        lines = io.StringIO()
+        try:
+            warmup.ensure(stream=lines)
+        except RuntimeError as exc:   # reported here; the tests that use the kernel fail on their own
+            lines.write(f"[compile] FAILED: {exc}\n")
+        done.with_suffix(".tmp").write_text(lines.getvalue())
         os.replace(done.with_suffix(".tmp"), done)   # whole, or not there
     threading.Thread(target=wait, daemon=True).start()
 

@@ -3,6 +3,7 @@
 ``python -m leglib robustness`` writes the robustness table to reports/robustness/;
 ``python -m leglib design --backend usb --zeta 0.24 --fn 5`` finds gains for prescribed
 dynamics on a leg in a few steps (``lg.tune``), its bench time estimated first and limited;
+``python -m leglib compile`` compiles the numba kernels ahead of their first use;
 ``python -m leglib odrivetool [--seed N --firmware 0.5.6 --plant NAME]`` opens odrivetool's
 shell with ``odrv0`` on a virtual ODrive.
 
@@ -188,6 +189,10 @@ def _parser() -> argparse.ArgumentParser:
                      help=f"the twin's foot payload [kg], virtual only, 0 to {MAX_PAYLOAD:g} (default: %(default)g)")
     des.add_argument("--save", default=None, metavar="PATH",
                      help="write the design (cascade gains, target, measured) to this JSON file (default: not saved)")
+    comp = sub.add_parser("compile", help="compile the numba kernels now (make venv does; run does when their "
+                                          "sources changed), one line per group as it ends")
+    comp.add_argument("--if-changed", action="store_true",
+                      help="only when a kernel's source changed since the last compile")
     tool = sub.add_parser("odrivetool", help="odrivetool's shell (IPython, odrv0) on a virtual ODrive v3.6")
     tool.add_argument("--seed", type=_seed, default=0, help="the virtual ODrive's seed: its serial number, "
                       "its noise (default: %(default)s)")
@@ -307,6 +312,14 @@ def main(argv: list[str] | None = None) -> int:
         index = batch_root(args.out, spec) / "index.html"
         print(f"{len(results) - len(failed)} runs done, {len(failed)} failed or not run; index: {index}")
         return 1 if failed else 0
+    if args.command == "compile":
+        from . import warmup  # load time: for this command only
+        try:
+            warmup.ensure() if args.if_changed else warmup.compile_kernels()
+        except RuntimeError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
+        return 0
     if args.command == "run":
         from .run import run_all  # load time: papermill and the kernel machinery, for this command only
         try:

@@ -18,6 +18,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
 from ..files.atomic import oserror_naming, write_bytes_atomic
+from . import warmup
 from .offline import offline_notebook
 from .progress import StageLog, clock
 
@@ -259,6 +260,9 @@ def run_all(out_dir: str | Path = "reports", smoke: bool = False, workers: int |
         print(f"[run] {p.name} {what}: {ended}/{len(paths)} notebooks ended after "
               f"{clock(time.monotonic() - t0)}", file=sys.stderr, flush=True)
 
+    # the kernels once, here, with a line per group: not in two notebook kernels at once,
+    # silently, after an edit of a kernel's source (leglib.notebook.warmup)
+    warmup.ensure()
     print(f"[run] {len(paths)} notebooks, {workers} at a time, into {out_dir}", file=sys.stderr, flush=True)
     data_before = _data_files()
     with ProcessPoolExecutor(max_workers=workers) as pool:

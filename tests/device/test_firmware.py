@@ -881,3 +881,23 @@ def test_a_pre_calibrated_encoder_is_ready_once_its_index_is_found_after_a_boot(
     ax.encoder.config.phase_offset = ax.encoder.config.phase_offset + 500
     with pytest.raises(UnmodeledError, match="phase_offset"):
         ax.requested_state = V.AXIS_STATE_CLOSED_LOOP_CONTROL
+
+
+def test_real_time_never_runs_ahead_of_the_wall_clock():
+    """Paced in real time, the virtual clock is never ahead of the wall clock after a
+    transaction returns (firmware.py _pace): a request written is taken up by the axis thread
+    on its next iteration (axis.cpp:447-451, a 1 ms period), so a script that sleeps 1 ms
+    after writing requested_state finds it taken (requested_state read back as UNDEFINED,
+    axis.cpp:455-459), as on a board; a clock that ran ahead left it pending."""
+    import time
+    odrv = _device(realtime=True)
+    ax = odrv.axis0
+    ahead, pending = [], 0
+    for _ in range(40):
+        ax.requested_state = V.AXIS_STATE_IDLE
+        ahead.append(odrv.time - (time.monotonic() - odrv._t0_wall))
+        time.sleep(0.001)
+        pending += ax.requested_state != V.AXIS_STATE_UNDEFINED
+        ahead.append(odrv.time - (time.monotonic() - odrv._t0_wall))
+    assert max(ahead) <= 1e-9, f"the virtual clock ran {max(ahead) * 1e3:.3f} ms ahead of the wall clock"
+    assert pending == 0, f"{pending} of 40 requests not taken 1 ms after their write"

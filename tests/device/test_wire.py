@@ -307,3 +307,38 @@ def test_the_virtual_timeline_does_not_depend_on_the_client_threads():
         assert run.returncode == 0, run.stderr
         outs.add(run.stdout.strip())
     assert len(outs) == 1, outs
+
+
+def test_a_running_loop_is_left_alone():
+    """In a process whose main thread runs an event loop (a Jupyter kernel), connecting to the
+    virtual ODrive and rebooting it leave that loop unpatched: the client's device manager
+    runs on a thread of its own. A kernel loop patched for nesting from inside a cell crashed
+    the kernel in JupyterLab (asyncio's _run_once: "pop from an empty deque", the outer
+    iteration popping callbacks a nested run had taken). A new process: the device manager
+    is global and made once."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent("""
+        import asyncio
+        import leglib as lg
+        from odrive.device_manager import get_device_manager
+
+        async def cell():
+            loop = asyncio.get_running_loop()
+            dev = lg.connect("virtual", seed=5)
+            try:
+                dev.raw.reboot()                    # the device manager finds it again
+            except Exception:                       # the reply lost with the link, as on a board
+                pass
+            dev.reconnect()
+            assert get_device_manager().loop is not loop, "the device manager took the kernel's loop"
+            assert not hasattr(loop, "_nest_patched"), "the kernel's loop was patched for nesting"
+            print("OK", float(dev.raw.vbus_voltage) > 0)
+
+        asyncio.run(cell())
+    """)
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.split() == ["OK", "True"]

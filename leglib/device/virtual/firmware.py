@@ -617,7 +617,9 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         if ahead > 0.0:
             _time.sleep(ahead)
         elif ahead < -self.twin.dt:
-            self._advance(-ahead)
+            # the remainder _advance carries is counted in: with it added, catching up ran
+            # up to one tick past the wall clock
+            self._advance(max(0.0, -ahead - self._pending))
 
     def _check_link(self):
         if self.lost:

@@ -551,11 +551,16 @@ def _manager():
     the virtual interface registered with it."""
     from odrive._internal_utils import get_current_loop  # load time: the client's device manager
     from odrive.device_manager import get_device_manager  # load time: the client's device manager
+    # a thread and loop of its own, also where this thread runs a loop: a Jupyter kernel's
+    # loop, patched for nesting from inside a cell (its outer _run_once already counted the
+    # ready callbacks a nested run takes), crashes the kernel ("pop from an empty deque")
+    dm = get_device_manager(force_background_thread=True)
     loop = get_current_loop()
-    if loop is not None and not hasattr(loop, "_nest_patched"):
+    if loop is not None and dm.loop is loop and not hasattr(loop, "_nest_patched"):
+        # a device manager bound to this loop before (odrivetool's shell made it there):
+        # the synchronous calls below run on it nested, as odrive.find_sync does
         import odrive._nest_asyncio  # load time: only in a shell's running loop (as odrive.find_sync does)
         odrive._nest_asyncio.apply(loop)
-    dm = get_device_manager()
     intf = _INTERFACES.get(id(dm))
     if intf is None:
         intf = _INTERFACES[id(dm)] = VirtualInterface()

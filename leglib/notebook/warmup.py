@@ -1,0 +1,190 @@
+"""The numba kernels compiled ahead of their first use: ``python -m leglib compile``.
+
+numba compiles a kernel on its first call in a process and keeps the machine code in its
+cache (beside the source, ``leglib/**/__pycache__``, or under ``$NUMBA_CACHE_DIR``); a
+later process loads it in a fraction of a second. With an empty cache the first
+calibration of the twin waits about 30 s and the first step fit about 15 s (2 cores), and a
+first ``make run`` compiles the same kernels in two notebook kernels at once. So ``make
+venv`` compiles them once at install, a group per process, each group's line printed as it
+ends; ``python -m leglib run`` does it again first when a kernel's source changed since
+(an edit, a pull), and the test suite before its workers start (tests/conftest.py).
+
+The groups are chosen so that no two processes compile the same heavy function:
+
+- ``device``: a device's calibration and a step (the twin's kernel on a batch of one);
+- ``batch``: the twin's kernel on a batch of several legs (the thread-parallel kernel);
+- ``fits``: the step fit (one and many responses), the friction fit's simulator, the
+  model's terms, energy, kinematics and the torque-table simulator.
+
+Every call in a group is an ordinary use of leglib, so whatever a group compiles is what
+that use needs. Whether the cache is current is read from a stamp written after a
+successful compile (:func:`stamp_path`): the numba version and the size and modification
+time of every source file with cached kernels -- what numba's own cache index checks.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+PACKAGE = Path(__file__).resolve().parents[1]
+GROUPS = ("device", "batch", "fits")
+WHAT = {"device": "the twin's kernel for one device (calibration, a step)",
+        "batch": "the twin's kernel for a batch of legs (sweeps)",
+        "fits": "the step and friction fits, the model's terms"}
+
+
+def _device():
+    from ..device.session import connect  # load time: each group imports only what it compiles
+    from ..device.setup import calibrate, configure  # load time: as above
+    from ..experiments.step import step_response  # load time: as above
+    dev = connect("virtual", seed=1)
+    configure(dev)
+    calibrate(dev)
+    step_response(dev, 50.0, 0.046, 0.001, duration=0.05)
+
+
+def _batch():
+    from ..twin.host import Twin  # load time: as above
+    twin = Twin()
+    twin.run(twin._initial_state(2), ticks=8)
+
+
+def _fits():
+    from .. import model as M  # load time: as above
+    from ..identify import fastfit  # load time: as above
+    from ..identify.friction import FrictionFit  # load time: as above
+    from ..identify.step import second_order  # load time: as above
+    from ..model.terms import PARALLEL_POINTS  # load time: as above
+    from ..params import load_leg  # load time: as above
+
+    t = np.arange(750) * 0.002
+    y = fastfit.model(t, 0.24, 31.4, 0.05, 0.0, 0.01)
+    second_order(t, y)
+    fastfit.fit_packed([t] * fastfit.PARALLEL_FROM, [y] * fastfit.PARALLEL_FROM)
+    fastfit.shape_numbers([t], [y])
+    leg = load_leg("thesis")
+    q1, q2 = np.full(3, leg.q1), np.full(3, leg.q2)
+    M.mass_matrix(leg, q1, q2)
+    M.energy(leg, q1, q2, q1, q2)
+    M.lower_link_angles(leg, q1, q2)
+    M.foot_position(leg, q1, q2)
+    big = np.full(PARALLEL_POINTS, leg.q1)
+    M.foot_position(leg, big, big)
+    M.simulate_torque_table(leg, [leg.q1, 0.0, leg.q2, 0.0], np.zeros((3, 2)), 0.002)
+    FrictionFit(0.01, 0.01, 0.001, 1e-4, 0.0, 0.01, {}, 1.0, 0.0, 0.0, 3).simulate(t[:3], np.zeros(3))
+
+
+_RUN = {"device": _device, "batch": _batch, "fits": _fits}
+
+
+def cache_dir() -> Path:
+    """Where numba keeps leglib's compiled kernels: ``$NUMBA_CACHE_DIR`` when set, else
+    beside the sources (numba falls back to a per-user directory when that cannot be
+    written; the stamp then cannot be written either, and :func:`ensure` compiles -- that
+    is, loads -- every time, a few seconds)."""
+    env = os.environ.get("NUMBA_CACHE_DIR")
+    return Path(env) if env else PACKAGE / "__pycache__"
+
+
+def stamp_path() -> Path:
+    return cache_dir() / "leglib-compiled.json"
+
+
+_CACHED = re.compile(r"^\s*@(numba\.)?(njit|jit)\(.*cache=True", re.M)   # a decorator of a cached kernel
+
+
+def _sources() -> dict:
+    """Size and modification time of every leglib source file with cached kernels."""
+    out = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        text = path.read_text(encoding="utf-8", errors="replace")
+        if _CACHED.search(text):
+            st = path.stat()
+            out[str(path.relative_to(PACKAGE))] = [st.st_size, st.st_mtime_ns]
+    return out
+
+
+def _fingerprint() -> dict:
+    import numba  # load time: only to name its version
+    return {"numba": numba.__version__, "python": sys.version.split()[0], "sources": _sources()}
+
+
+def up_to_date() -> bool:
+    """Whether the kernels were compiled after the last change of their sources (the stamp
+    of the last successful :func:`compile_kernels` matches)."""
+    try:
+        return json.loads(stamp_path().read_text()) == _fingerprint()
+    except (OSError, ValueError):
+        return False
+
+
+def compile_kernels(groups=GROUPS, stream=None) -> dict:
+    """Compile (or, with a current cache, load) the kernels of ``groups``, each in its own
+    process, all at once; a line on ``stream`` (standard error) when one starts and as each
+    ends, with its time. Returns ``{group: seconds}``; raises RuntimeError naming the group
+    and its output when one fails. Writes the stamp when all succeeded."""
+    stream = sys.stderr if stream is None else stream
+    unknown = [g for g in groups if g not in _RUN]
+    if unknown:
+        raise ValueError(f"unknown kernel group(s) {unknown}; known: {list(GROUPS)}")
+    fingerprint = _fingerprint()   # of the sources as they are when the compiles start
+    print(f"[compile] numba kernels, {len(groups)} groups at once (about a minute on 2 cores with an "
+          f"empty cache, a few seconds with a current one): {', '.join(groups)}", file=stream, flush=True)
+    t0 = time.monotonic()
+    procs = {g: subprocess.Popen([sys.executable, "-m", "leglib.notebook.warmup", g], stdout=subprocess.PIPE,
+                                 stderr=subprocess.STDOUT, text=True) for g in groups}
+    times, failed = {}, {}
+    pending = dict(procs)
+    while pending:
+        for g, p in list(pending.items()):
+            if p.poll() is None:
+                continue
+            out = p.stdout.read()
+            del pending[g]
+            if p.returncode:
+                failed[g] = out[-3000:]
+                print(f"[compile] {g}: FAILED (exit {p.returncode})", file=stream, flush=True)
+            else:
+                times[g] = time.monotonic() - t0
+                print(f"[compile] {g} ({WHAT[g]}): ready after {times[g]:.1f} s", file=stream, flush=True)
+        time.sleep(0.1)
+    if failed:
+        raise RuntimeError("compiling leglib's kernels failed in group(s) "
+                           + "; ".join(f"{g}:\n{out}" for g, out in failed.items()))
+    if tuple(groups) == GROUPS:
+        try:
+            stamp_path().parent.mkdir(parents=True, exist_ok=True)
+            stamp_path().write_text(json.dumps(fingerprint))
+        except OSError:
+            pass   # a read-only install: compiled (or loaded) again next time, see cache_dir
+    return times
+
+
+def ensure(stream=None) -> dict:
+    """:func:`compile_kernels` when the kernels' sources changed since the last compile;
+    a line saying so otherwise. Returns the groups' times (empty when nothing was done)."""
+    stream = sys.stderr if stream is None else stream
+    if up_to_date():
+        print(f"[compile] numba kernels current (compiled since their sources last changed; "
+              f"{stamp_path()})", file=stream, flush=True)
+        return {}
+    return compile_kernels(stream=stream)
+
+
+def main(argv: list[str]) -> int:
+    """One group in this process (the worker of :func:`compile_kernels`)."""
+    for name in argv:
+        _RUN[name]()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,84 @@
+"""leglib.notebook.warmup: the kernels compiled ahead of use, and the stamp that says whether
+that compile is still current."""
+
+import io
+import os
+
+import pytest
+
+from leglib.notebook import cli, warmup
+
+
+@pytest.fixture
+def fake_package(tmp_path, monkeypatch):
+    """A package of two files, one with a cached kernel, and a cache directory of its own."""
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "kernels.py").write_text("@njit(cache=True)\ndef f(): pass\n")
+    (pkg / "plain.py").write_text("def g(): pass\n")
+    monkeypatch.setattr(warmup, "PACKAGE", pkg)
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    return pkg
+
+
+def test_the_sources_are_the_files_with_cached_kernels():
+    sources = warmup._sources()
+    assert "twin/kernel.py" in sources and "identify/fastfit.py" in sources
+    assert "notebook/warmup.py" not in sources and "units.py" not in sources
+    for rel in sources:
+        assert "cache=True" in (warmup.PACKAGE / rel).read_text()
+
+
+def test_the_stamp_goes_stale_when_a_kernel_source_changes(fake_package):
+    assert warmup.stamp_path().parent == fake_package.parent / "cache"
+    assert not warmup.up_to_date()                                  # never compiled
+    warmup.stamp_path().parent.mkdir()
+    warmup.stamp_path().write_text(__import__("json").dumps(warmup._fingerprint()))
+    assert warmup.up_to_date()
+    (fake_package / "plain.py").write_text("def g(): return 1\n")   # no kernel in it
+    assert warmup.up_to_date()
+    st = (fake_package / "kernels.py").stat()
+    os.utime(fake_package / "kernels.py", ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))   # an edit, a pull
+    assert not warmup.up_to_date()
+
+
+def test_ensure_says_current_and_compiles_nothing(fake_package, monkeypatch, capsys):
+    warmup.stamp_path().parent.mkdir()
+    warmup.stamp_path().write_text(__import__("json").dumps(warmup._fingerprint()))
+    monkeypatch.setattr(warmup.subprocess, "Popen", lambda *a, **k: pytest.fail("compiled although current"))
+    assert cli.main(["compile", "--if-changed"]) == 0
+    assert "numba kernels current" in capsys.readouterr().err
+
+
+def test_an_unknown_group_is_named():
+    with pytest.raises(ValueError, match=r"unknown kernel group\(s\) \['sweep'\]; known: \['device', 'batch', 'fits'\]"):
+        warmup.compile_kernels(["sweep"])
+
+
+def test_a_failing_group_is_reported_and_leaves_no_stamp(fake_package, monkeypatch):
+    """A group whose process fails (here one its worker does not know: KeyError) is named with
+    its output; the stamp is not written, so the next run compiles again."""
+    monkeypatch.setattr(warmup, "_RUN", {**warmup._RUN, "boom": None})
+    monkeypatch.setattr(warmup, "WHAT", {**warmup.WHAT, "boom": "nothing"})
+    monkeypatch.setattr(warmup, "GROUPS", ("boom",))
+    lines = io.StringIO()
+    with pytest.raises(RuntimeError, match=r"(?s)failed in group\(s\) boom:.*KeyError: 'boom'"):
+        warmup.compile_kernels(("boom",), stream=lines)
+    assert "[compile] boom: FAILED (exit 1)" in lines.getvalue()
+    assert not warmup.stamp_path().exists()
+
+
+def test_a_compile_prints_a_line_per_group_and_writes_the_stamp(fake_package, monkeypatch):
+    """The real groups with the repository's numba cache (warm in a test run: they load), the
+    stamp under the fake cache directory: one line when they start, one as each is ready."""
+    monkeypatch.delenv("NUMBA_CACHE_DIR")
+    cache = fake_package.parent / "cache"
+    monkeypatch.setattr(warmup, "cache_dir", lambda: cache)
+    lines = io.StringIO()
+    times = warmup.compile_kernels(stream=lines)
+    assert set(times) == set(warmup.GROUPS) and all(t > 0 for t in times.values())
+    out = lines.getvalue().splitlines()
+    assert out[0].startswith("[compile] numba kernels, 3 groups at once")
+    assert sorted(line.split()[1] for line in out[1:]) == sorted(warmup.GROUPS)
+    assert all("ready after" in line for line in out[1:])
+    assert warmup.up_to_date()
