@@ -13,6 +13,7 @@ import numpy as np
 from PIL import Image
 
 from . import model as M
+from .units import interval_text
 
 
 def axes(ax=None):
@@ -525,8 +526,13 @@ def plot_thesis_peaks(t, reading, ax=None):
     ``reading`` is a :class:`leglib.identify.listing77.ThesisReading` of ``t``.
     """
     ax = axes(ax)
-    label = (f"Listing 7.7: zeta = {reading.zeta:.3f}, 1/(t2 - t1) = {reading.fd:.2f} Hz"
-             if not reading.flagged else f"Listing 7.7: {reading.n_peaks} peak(s), zeta set to {reading.zeta:g}")
+    if reading.flagged:
+        label = f"Listing 7.7: {reading.n_peaks} peak(s), zeta set to {reading.zeta:g}"
+    elif getattr(reading, "intervals", None) is not None:
+        label = (f"Listing 7.7: zeta = {interval_text(reading.zeta, reading.zeta_interval)}, 1/(t2 - t1) = "
+                 f"{interval_text(reading.fd, reading.fd_interval)} Hz (90 % intervals)")
+    else:   # a failure: the numbers it would give, no interval
+        label = f"Listing 7.7: zeta = {reading.zeta:.3g}, 1/(t2 - t1) = {reading.fd:.3g} Hz (no reading)"
     arts = ax.plot(t, reading.smoothed, "b-", lw=1.5, label="smooth(-y)")
     arts += ax.plot(reading.peak_times, reading.peak_values, "ro", mfc="none", ms=8, mew=1.5,
                     label=f"findpeaks: {reading.n_peaks} peaks")
@@ -560,7 +566,8 @@ def plot_readings_map(rows, measure: str = "thesis", ax=None, targets=None):
     :func:`leglib.thesis.compare_readings`), on fixed axes; points beyond them are counted
     in the legend.
 
-    ``measure="thesis"``: Listing 7.7's zeta against its 1/(t2 - t1) [Hz], on the thesis's
+    ``measure="thesis"``: Listing 7.7's zeta against its 1/(t2 - t1) [Hz] with their 90 %
+    intervals, on the thesis's
     Fig. 6.12 axes (0-1, 0-10 Hz), for the "ok" points whose reading is usable (the first two
     peaks are the oscillation's); a usable reading on which the listing still fails (more
     peaks than cycles) is drawn hollow, and the points it fails on outright (fewer than two
@@ -581,8 +588,17 @@ def plot_readings_map(rows, measure: str = "thesis", ax=None, targets=None):
                 continue
             x = np.array([r["thesis_zeta"] for r in group])
             y = np.array([r["thesis_f_hz"] for r in group])
-            label = (f"Listing 7.7 readings ({len(group)})" if group is clean else
-                     f"Listing 7.7 fails: more peaks than cycles ({len(group)}; first two peaks the oscillation's)")
+            zi = np.array([r.get("thesis_zeta_interval", (np.nan, np.nan)) for r in group], float)
+            fi = np.array([r.get("thesis_f_interval", (np.nan, np.nan)) for r in group], float)
+            inside = (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1) & np.all(np.isfinite(zi), axis=1) \
+                & np.all(np.isfinite(fi), axis=1)
+            if inside.any():   # each reading's 90 % intervals (listing77.ReadingIntervals)
+                arts.append(ax.errorbar(x[inside], y[inside], xerr=np.abs(zi[inside].T - x[inside]),
+                                        yerr=np.abs(fi[inside].T - y[inside]), fmt="none",
+                                        ecolor=style.get("c", style.get("edgecolors")), alpha=0.35, lw=0.6))
+            label = (f"Listing 7.7 readings ({len(group)}, 90 % intervals)" if group is clean else
+                     f"Listing 7.7 fails: more peaks than cycles ({len(group)}; first two peaks the oscillation's, "
+                     f"90 % intervals)")
             arts.append(ax.scatter(np.clip(x, x0, x1), np.clip(y, y0, y1), s=12, label=label, **style))
         failed = len(okr) - len(use)
         if failed:

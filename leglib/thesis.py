@@ -31,7 +31,7 @@ from .errors import IdentificationError
 from .experiments.step import StepResponse
 from .files.sweepdir import read_measurements
 from .identify.fastfit import model
-from .identify.listing77 import ThesisReading
+from .identify.listing77 import ThesisReading, add_intervals
 from .identify.step import second_order
 from .model.cascade import motor_side_inertia
 from .params import SHIPPED_DIR, LegParams, load_leg, load_odrive_config
@@ -108,9 +108,49 @@ def first_peak_needed(thesis_zeta: float, second_peak_deg: float = STEP_DEG) -> 
     return {"delta": delta, "peak_ratio": ratio, "first_peak_deg": a1, "overshoot": a1 / STEP_DEG - 1}
 
 
+def angle_count(a_deg) -> float:
+    """The encoder count [deg] of a recorded angle: the largest step of which every change
+    between its samples is a whole multiple (the record is quantized: the twin's counts, the
+    thesis's CSV of a 4000-count encoder through the 1:3 belt, 0.03 deg), tried as the
+    smallest change over 1 ... 5; 0 when the changes share no such step (a record without
+    quantization)."""
+    d = np.abs(np.diff(np.asarray(a_deg, float)))
+    d = d[d > 1e-9]
+    if d.size == 0:
+        return 0.0
+    for k in range(1, 6):
+        q = float(d.min()) / k
+        ratio = d / q
+        if bool(np.all(np.abs(ratio - np.round(ratio)) < 0.01)):
+            return q
+    return 0.0
+
+
+def read_angles(t, angle1_deg, angle2_deg, length: float = M.LISTING_LENGTH) -> ThesisReading:
+    """Listing 7.7 on the thesis's own columns: joint-angle changes from the first sample
+    [deg] (Listing 7.4's CSV), with the intervals of a usable reading.
+
+    The intervals (:class:`leglib.identify.listing77.ReadingIntervals`) take the record's
+    noise and, for a quantized record, the encoder's rounding at each crest: one count
+    (:func:`angle_count`) of joint j changes y by length |sin(angle_j)| count [rad] there,
+    whose rounding error has a standard deviation of that / sqrt(12); both joints in
+    quadrature.
+    """
+    a1, a2 = np.asarray(angle1_deg, float), np.asarray(angle2_deg, float)
+    y = M.thesis_listing_height(a1, a2, length)
+    reading = second_order(t, y, method="thesis")
+    if reading.usable:
+        counts = (math.radians(angle_count(a1)), math.radians(angle_count(a2)))
+        quant = tuple(math.hypot(*(length * abs(math.sin(math.radians(a[i]))) * c for a, c in zip((a1, a2), counts)))
+                      / math.sqrt(12) for i in reading.peak_index[:2])
+        add_intervals(reading, t, y, quantization=quant)
+    return reading
+
+
 def read_step(resp) -> ThesisReading:
-    """Listing 7.7's reading of a :class:`leglib.experiments.step.StepResponse` (thesis measure)."""
-    return second_order(resp.t, listing_signal(resp.q1, resp.q2), method="thesis")
+    """Listing 7.7's reading of a :class:`leglib.experiments.step.StepResponse` (thesis
+    measure), with its intervals (:func:`read_angles`)."""
+    return read_angles(resp.t, M.zeroed_degrees(resp.q1), M.zeroed_degrees(resp.q2))
 
 
 def ideal_step(zeta: float, fd: float, step_deg: float = STEP_DEG, duration: float = 1.5,
@@ -193,10 +233,13 @@ def compare_readings(responses, leg) -> list[dict]:
     Returns
     -------
     list of dict: ``gains``, ``status`` ("ok", "unstable", "failed"), ``reason``;
-    Listing 7.7's ``thesis_zeta``, ``thesis_f_hz`` (1/(t2 - t1)), ``thesis_flagged``
-    (fewer than two peaks: the listing's constants), ``thesis_usable`` (its first two peaks
-    are the oscillation's, :attr:`ThesisReading.usable`), ``thesis_problem`` (why the
-    listing fails on the response, or None), ``thesis_peaks``, ``first_peak_deg``
+    Listing 7.7's ``thesis_zeta``, ``thesis_f_hz`` (1/(t2 - t1)) with their 90 % intervals
+    ``thesis_zeta_interval``, ``thesis_f_interval`` ((NaN, NaN) for a reading the listing
+    fails on), ``thesis_flagged`` (fewer than two peaks: the listing's constants),
+    ``thesis_usable`` (its first two peaks are the oscillation's, :attr:`ThesisReading.usable`),
+    ``thesis_failure`` (the kind of an outright failure, :attr:`ThesisReading.failure`, or
+    None), ``thesis_problem`` (why the listing fails on the response, or None),
+    ``thesis_peaks``, ``first_peak_deg``
     (:func:`equivalent_angle_deg` of the first peak); and for an "ok" point the true
     ``zeta``, ``fn``, ``fd`` [Hz] (least squares on the foot height) with their 90 %
     intervals ``zeta_interval``, ``fn_interval``, ``fd_interval`` (NaN otherwise). A failed
@@ -209,7 +252,9 @@ def compare_readings(responses, leg) -> list[dict]:
     nan = float("nan")
     for r, p in zip(responses, points):
         row = {"gains": tuple(float(g) for g in r.gains), "status": p.status, "reason": p.reason,
-               "thesis_zeta": nan, "thesis_f_hz": nan, "thesis_flagged": True, "thesis_usable": False,
+               "thesis_zeta": nan, "thesis_f_hz": nan, "thesis_zeta_interval": (nan, nan),
+               "thesis_f_interval": (nan, nan), "thesis_flagged": True, "thesis_usable": False,
+               "thesis_failure": "not read" if not r.completed else None,
                "thesis_problem": "not read: the step was aborted" if not r.completed else None,
                "thesis_peaks": 0, "first_peak_deg": nan, "zeta": nan, "fn": nan, "fd": nan,
                "zeta_interval": (nan, nan), "fn_interval": (nan, nan), "fd_interval": (nan, nan)}
@@ -217,10 +262,12 @@ def compare_readings(responses, leg) -> list[dict]:
             try:
                 th = read_step(r)
             except IdentificationError as exc:
-                row.update(thesis_problem=f"Listing 7.7 cannot read it: {exc}")
+                row.update(thesis_problem=f"Listing 7.7 cannot read it: {exc}", thesis_failure="not read")
             else:
-                row.update(thesis_zeta=th.zeta, thesis_f_hz=th.fd, thesis_flagged=th.flagged,
-                           thesis_usable=th.usable, thesis_problem=th.problem, thesis_peaks=th.n_peaks,
+                row.update(thesis_zeta=th.zeta, thesis_f_hz=th.fd, thesis_zeta_interval=th.zeta_interval,
+                           thesis_f_interval=th.fd_interval, thesis_flagged=th.flagged,
+                           thesis_usable=th.usable, thesis_failure=th.failure, thesis_problem=th.problem,
+                           thesis_peaks=th.n_peaks,
                            first_peak_deg=equivalent_angle_deg(th.peak_values[0]) if th.n_peaks else nan)
         if p.status == "ok":
             row.update(zeta=p.zeta, fn=p.fn, fd=p.fd, zeta_interval=p.zeta_interval, fn_interval=p.fn_interval,
@@ -262,6 +309,39 @@ def nearest_reading(rows: list[dict], zeta: float, f_hz: float) -> dict:
     return {**best, "distance": best_d}
 
 
+#: how close Listing 7.7's reading must come to a thesis-measure target to count as reached
+#: (relative, each of zeta and 1/(t2 - t1))
+THESIS_TOLERANCE = 0.10
+
+
+def reading_against(reading: ThesisReading, target, tolerance: float = THESIS_TOLERANCE) -> dict:
+    """Listing 7.7's ``reading`` against a target in its own measure (``target`` = (zeta,
+    1/(t2 - t1) [Hz]), e.g. :data:`TEXT_TARGET`): the relative errors with their 90 %
+    intervals (the reading's, :class:`leglib.identify.listing77.ReadingIntervals`), and
+    reached only when both intervals lie within ``tolerance`` of the target.
+
+    Returns
+    -------
+    dict: ``error_zeta``, ``error_f`` (fractions), ``error_zeta_interval``,
+    ``error_f_interval`` ((NaN, NaN) without a reading), ``reached`` (bool), ``verdict``
+    (a sentence: reached, what reaches beyond the tolerance, or why there is no reading)
+    """
+    nan = float("nan")
+    tz, tf = float(target[0]), float(target[1])
+    if not reading.usable:
+        return {"error_zeta": nan, "error_f": nan, "error_zeta_interval": [nan, nan], "error_f_interval": [nan, nan],
+                "reached": False, "verdict": f"not reached: Listing 7.7 gives no reading ({reading.problem})"}
+    ez, ef = reading.zeta / tz - 1, reading.fd / tf - 1
+    zi = [b / tz - 1 for b in reading.zeta_interval]
+    fi = [b / tf - 1 for b in reading.fd_interval]
+    beyond = [f"{name} [{lo:+.1%}, {hi:+.1%}]" for name, (lo, hi) in (("zeta", zi), ("1/(t2 - t1)", fi))
+              if not (-tolerance <= lo and hi <= tolerance)]
+    verdict = (f"reached: both 90 % intervals lie within +-{tolerance:.0%} of the target" if not beyond else
+               f"not reached: the errors' 90 % intervals of {' and '.join(beyond)} reach beyond +-{tolerance:.0%}")
+    return {"error_zeta": float(ez), "error_f": float(ef), "error_zeta_interval": zi, "error_f_interval": fi,
+            "reached": not beyond, "verdict": verdict}
+
+
 def bias_summary(rows: list[dict]) -> dict:
     """Median and range of Listing 7.7's error against the true values over ``rows``
     (from :func:`compare_readings`), on the points both measures identify: "ok" for the
@@ -271,11 +351,17 @@ def bias_summary(rows: list[dict]) -> dict:
     -------
     dict: ``points``, the three (min, median, max) relative errors, and the "ok" points the
     listing fails on, by kind: ``flagged`` (fewer than two peaks), ``ripple`` (its second peak
-    is the tail's ripple), ``many_peaks`` (more peaks than cycles; usable, counted above)
+    is the tail's ripple), ``unresolved`` (its first two peaks not told apart by their doubt),
+    ``many_peaks`` (more peaks than cycles; usable, counted above)
     """
     okr = [r for r in rows if r["status"] == "ok"]
-    fails = {"flagged": sum(1 for r in okr if r["thesis_flagged"]),
-             "ripple": sum(1 for r in okr if not r["thesis_flagged"] and not r["thesis_usable"]),
+
+    def kind(r):   # rows without the kind (older callers): every other failure is the tail's ripple
+        return r.get("thesis_failure", "flagged" if r["thesis_flagged"] else None if r["thesis_usable"] else "ripple")
+
+    fails = {"flagged": sum(1 for r in okr if kind(r) == "flagged"),
+             "ripple": sum(1 for r in okr if kind(r) == "ripple"),
+             "unresolved": sum(1 for r in okr if kind(r) == "unresolved"),
              "many_peaks": sum(1 for r in okr if r["thesis_usable"] and r["thesis_problem"])}
     ok = [r for r in okr if r["thesis_usable"] and np.isfinite(r["zeta"]) and np.isfinite(r["fd"])]
     if not ok:
@@ -293,15 +379,23 @@ def bias_summary(rows: list[dict]) -> dict:
 
 def listing_reach(rows: list[dict]) -> dict:
     """What Listing 7.7 reads at most over a sweep's "ok" points with a usable reading: the
-    largest ``thesis_zeta`` and the first peak's largest joint swing [deg] there, the true
-    zeta of the least-damped such point, and how many points there are. The thesis's
-    validated reading (:data:`THESIS_RESULT`) is the number to hold them against."""
+    largest ``thesis_zeta`` with its 90 % interval ``max_thesis_zeta_interval`` and the
+    highest upper end of any such reading's interval ``max_thesis_zeta_upper`` (what the
+    listing could have read at most, by the readings' doubt), the first peak's largest joint
+    swing [deg] there, the true zeta of the least-damped such point, and how many points there
+    are. The thesis's validated reading (:data:`THESIS_RESULT`) is the number to hold them
+    against."""
+    nan = float("nan")
     ok = [r for r in rows if r["status"] == "ok" and r["thesis_usable"]]
     if not ok:
-        return {"points": 0, "max_thesis_zeta": float("nan"), "max_first_peak_deg": float("nan"),
-                "min_true_zeta": float("nan")}
+        return {"points": 0, "max_thesis_zeta": nan, "max_thesis_zeta_interval": [nan, nan],
+                "max_thesis_zeta_upper": nan, "max_first_peak_deg": nan, "min_true_zeta": nan,
+                "thesis_result_zeta": THESIS_RESULT[0]}
     best = max(ok, key=lambda r: r["thesis_zeta"])
+    upper = [r.get("thesis_zeta_interval", (nan, nan))[1] for r in ok]
     return {"points": len(ok), "max_thesis_zeta": float(best["thesis_zeta"]),
+            "max_thesis_zeta_interval": [float(x) for x in best.get("thesis_zeta_interval", (nan, nan))],
+            "max_thesis_zeta_upper": float(np.nanmax(upper)) if np.any(np.isfinite(upper)) else nan,
             "max_thesis_zeta_gains": list(best["gains"]),
             "max_first_peak_deg": float(max(r["first_peak_deg"] for r in ok)),
             "min_true_zeta": float(min(r["zeta"] for r in ok)),

@@ -282,3 +282,43 @@ def test_bias_and_reach_use_only_what_both_measures_identify():
     reach = T.listing_reach(rows)
     assert reach["points"] == 1 and reach["max_thesis_zeta"] == 0.04 and reach["max_first_peak_deg"] == 55.0
     assert T.nearest_reading(rows, 0.24, 5.0)["gains"] == (1, 1, 1)
+
+
+def test_angle_count_is_the_records_quantum():
+    a = np.round(np.linspace(0, 48, 750) / 0.03) * 0.03
+    assert T.angle_count(a) == pytest.approx(0.03)
+    assert T.angle_count(np.linspace(0, 48, 750) + 1e-3 * np.sin(np.arange(750))) == 0.0   # not quantized
+    assert T.angle_count(np.zeros(10)) == 0.0
+
+
+def test_a_reading_against_its_target_uses_its_intervals():
+    """Reached in the thesis's measure only when both 90 % intervals lie within the
+    tolerance; the errors come with their intervals; a failed reading is no reading."""
+    t = np.arange(750) * 0.002
+    a = _model(t, 0.1, 2 * math.pi * 5.0 / math.sqrt(1 - 0.01), T.STEP_DEG, 0.0, 0.0)
+    r = T.read_angles(t, np.round(a / 0.03) * 0.03, -np.round(a / 0.03) * 0.03)
+    assert r.usable and r.zeta_interval[0] <= r.zeta <= r.zeta_interval[1]
+    ok = T.reading_against(r, (r.zeta, r.fd))
+    assert ok["reached"] and ok["error_zeta"] == 0 and ok["error_zeta_interval"][0] < 0 < ok["error_zeta_interval"][1]
+    far = T.reading_against(r, (T.TEXT_TARGET[0], r.fd))
+    assert not far["reached"] and "zeta" in far["verdict"] and far["error_zeta"] < -0.1
+    # just inside the tolerance by the value but not by the interval: not reached
+    edge = T.reading_against(r, (r.zeta / (1 + T.THESIS_TOLERANCE) * 1.0001, r.fd))
+    assert abs(edge["error_zeta"]) <= T.THESIS_TOLERANCE and not edge["reached"]
+    flat = T.read_angles(t, np.linspace(0, 48, t.size), -np.linspace(0, 48, t.size))
+    none = T.reading_against(flat, T.TEXT_TARGET)
+    assert not none["reached"] and "gives no reading" in none["verdict"] and math.isnan(none["error_zeta"])
+
+
+def test_reach_carries_the_largest_readings_interval():
+    rows = [{"gains": (1, 1, 1), "status": "ok", "thesis_zeta": 0.04, "thesis_zeta_interval": (0.039, 0.041),
+             "thesis_f_hz": 5.0, "thesis_flagged": False, "thesis_usable": True, "thesis_problem": None,
+             "first_peak_deg": 55.0, "zeta": 0.3},
+            {"gains": (2, 1, 1), "status": "ok", "thesis_zeta": 0.03, "thesis_zeta_interval": (0.02, 0.045),
+             "thesis_f_hz": 5.0, "thesis_flagged": False, "thesis_usable": True, "thesis_problem": None,
+             "first_peak_deg": 54.0, "zeta": 0.35}]
+    reach = T.listing_reach(rows)
+    assert reach["max_thesis_zeta"] == 0.04 and reach["max_thesis_zeta_interval"] == [0.039, 0.041]
+    assert reach["max_thesis_zeta_upper"] == 0.045      # another reading could be read higher by its doubt
+    empty = T.listing_reach([])
+    assert empty["points"] == 0 and math.isnan(empty["max_thesis_zeta_interval"][0])

@@ -36,6 +36,7 @@ from .. import checks
 from .._version import provenance as _prov
 from ..errors import DesignFileError
 from ..params import OdriveConfig, load_odrive_config
+from ..units import interval_text
 from .statefeedback import StateFeedback
 
 FORMAT = 1
@@ -49,12 +50,21 @@ MAX_ENTRY = 1e9
 # how closely the eigenvalues of A - B K (A - L C) must match the stored poles (observer
 # poles), relative to the largest pole: place() reaches 1e-8 on the thesis's design
 POLE_TOLERANCE = 1e-5
-def dynamics_text(pair) -> str:
-    """A (zeta, fn [Hz]) pair as text to the digits a step's identification supports (zeta to
-    three decimals, fn to 0.01 Hz); "none (not a second-order step)" for None."""
+#: what a gain design says of a (zeta, fn) stored without its intervals (a file written before
+#: they were stored, or a value that had none): never a silent default
+NO_INTERVAL = "no interval recorded"
+
+
+def dynamics_text(pair, intervals=None, missing: str = NO_INTERVAL) -> str:
+    """A (zeta, fn [Hz]) pair as text: with its 90 % ``intervals`` ((zeta low, high), (fn
+    low, high)) to the digits they support (:func:`leglib.units.interval_text`), else to the
+    digits a step's identification supports at best (zeta to three decimals, fn to 0.01 Hz)
+    and ``missing`` saying why there is no interval; "none (not a second-order step)" for None."""
     if pair is None:
         return "none (not a second-order step)"
-    return f"zeta {float(pair[0]):.3f}, fn {float(pair[1]):.2f} Hz"
+    if intervals is None:
+        return f"zeta {float(pair[0]):.3f}, fn {float(pair[1]):.2f} Hz ({missing})"
+    return f"zeta {interval_text(pair[0], intervals[0])}, fn {interval_text(pair[1], intervals[1])} Hz"
 
 
 # the target, predicted and measured step dynamics of a gain design
@@ -76,6 +86,12 @@ class GainDesign:
     measured : (zeta, fn [Hz]) identified from a step with ``gains`` on the leg, or None
     source : where the design came from, plain values (e.g. the sweep directory and its
         point counts, or the fitted plant's parameters)
+    measured_intervals : the 90 % intervals ((zeta low, high), (fn low, high) [Hz]) of
+        ``measured``, from the identification of the step that measured it
+        (:func:`leglib.design.points.identify_response`); None when none was recorded (a
+        file written before they were stored says so: :data:`NO_INTERVAL`)
+    predicted_intervals : the 90 % intervals of ``predicted`` where the prediction has them
+        (the map's, interpolated from its measured points); None otherwise
     """
 
     target: tuple
@@ -84,6 +100,8 @@ class GainDesign:
     predicted: tuple | None = None
     measured: tuple | None = None
     source: dict = field(default_factory=dict)
+    measured_intervals: tuple | None = None
+    predicted_intervals: tuple | None = None
 
     def __post_init__(self):
         self.target = _pair("target", self.target)
@@ -92,7 +110,30 @@ class GainDesign:
             raise ValueError(f"gains must be (pos_gain, vel_gain, vel_integrator_gain), got {self.gains!r}")
         self.predicted = None if self.predicted is None else _pair("predicted", self.predicted)
         self.measured = None if self.measured is None else _pair("measured", self.measured)
+        self.measured_intervals = _intervals("measured_intervals", self.measured_intervals, self.measured)
+        self.predicted_intervals = _intervals("predicted_intervals", self.predicted_intervals, self.predicted)
         self.source = _plain(dict(self.source))
+
+    def measured_text(self) -> str:
+        """The measured (zeta, fn) with its 90 % intervals, or saying none was recorded."""
+        return dynamics_text(self.measured, self.measured_intervals)
+
+    def predicted_text(self) -> str:
+        """The predicted (zeta, fn) with its 90 % intervals where the prediction has them (the
+        map's), else saying it has none."""
+        return dynamics_text(self.predicted, self.predicted_intervals,
+                             missing=f"{self.method}'s prediction, no interval recorded")
+
+    def __str__(self) -> str:
+        return (f"gains ({', '.join(f'{g:.4g}' for g in self.gains)}) by {self.method} for zeta {self.target[0]:g}, "
+                f"fn {self.target[1]:g} Hz: predicted {self.predicted_text()}; measured {self.measured_text()}"
+                + (" (90 % intervals)" if self.measured_intervals is not None else ""))
+
+    def _repr_markdown_(self) -> str:
+        return ("| target (ζ, fn [Hz]) | gains (pos, vel, vel_int) | method | predicted | measured [90 % interval] |\n"
+                "|---|---|---|---|---|\n"
+                f"| ({self.target[0]:g}, {self.target[1]:g}) | ({', '.join(f'{g:.4g}' for g in self.gains)}) | "
+                f"{self.method} | {self.predicted_text()} | {self.measured_text()} |")
 
 
 def _pair(name, value) -> tuple:
@@ -100,6 +141,27 @@ def _pair(name, value) -> tuple:
     if len(v) != 2:
         raise ValueError(f"{name} must be (zeta, fn), got {value!r}")
     return v
+
+
+def _intervals(name, value, pair):
+    """((zeta low, high), (fn low, high)) as floats, each holding its value of ``pair``; None
+    for None, and for an interval with a NaN bound (the identification gave none)."""
+    if value is None:
+        return None
+    if pair is None:
+        raise ValueError(f"{name} given without the values they belong to")
+    try:
+        iv = tuple(tuple(float(b) for b in x) for x in value)
+    except TypeError:
+        raise ValueError(f"{name} must be ((zeta low, high), (fn low, high)), got {value!r}") from None
+    if len(iv) != 2 or any(len(x) != 2 for x in iv):
+        raise ValueError(f"{name} must be ((zeta low, high), (fn low, high)), got {value!r}")
+    if any(math.isnan(b) for x in iv for b in x):
+        return None
+    for (lo, hi), v, what in zip(iv, pair, ("zeta", "fn")):
+        if not lo <= v <= hi:
+            raise ValueError(f"{name}: the {what} interval [{lo:g}, {hi:g}] does not hold its value {v:g}")
+    return iv
 
 
 def _plain(obj):
@@ -247,12 +309,23 @@ def _state_feedback_body(d, observer_factor, linearization) -> dict:
     }
 
 
+def _zeta_fn_out(pair, intervals) -> dict | None:
+    """{"zeta", "fn_hz"} and, when there are intervals, {"zeta_interval", "fn_interval_hz"}:
+    [low, high], a bound that is not finite (an unbounded interval) written as null."""
+    if pair is None:
+        return None
+    out = {"zeta": pair[0], "fn_hz": pair[1]}
+    if intervals is not None:
+        out["zeta_interval"], out["fn_interval_hz"] = (_plain(list(x)) for x in intervals)
+    return out
+
+
 def _gain_body(g: GainDesign) -> dict:
     return {"target": {"zeta": g.target[0], "fn_hz": g.target[1]},
             "gains": {"pos_gain": g.gains[0], "vel_gain": g.gains[1], "vel_integrator_gain": g.gains[2]},
             "method": g.method,
-            "predicted": None if g.predicted is None else {"zeta": g.predicted[0], "fn_hz": g.predicted[1]},
-            "measured": None if g.measured is None else {"zeta": g.measured[0], "fn_hz": g.measured[1]},
+            "predicted": _zeta_fn_out(g.predicted, g.predicted_intervals),
+            "measured": _zeta_fn_out(g.measured, g.measured_intervals),
             "source": g.source}
 
 
@@ -404,6 +477,33 @@ def _zeta_fn(path, data, name, optional: bool):
                  for k, high in (("zeta", MAX_ZETA), ("fn_hz", MAX_FN_HZ)))
 
 
+def _zeta_fn_intervals(path, data, name, pair):
+    """The intervals stored beside ``name``'s (zeta, fn): None when the file holds none (one
+    written before they were stored: the design then says :data:`NO_INTERVAL`), an error
+    naming the field when they are malformed or do not hold their value."""
+    v = data.get(name)
+    if pair is None or not isinstance(v, dict):
+        return None
+    keys = ("zeta_interval", "fn_interval_hz")
+    present = [k in v for k in keys]
+    if not any(present):
+        return None
+    if not all(present):
+        missing = keys[present.index(False)]
+        raise _bad(path, f"{name}.{missing}", "is missing (the other interval is there)")
+    out = []
+    for k, value, high in zip(keys, pair, (MAX_ZETA, MAX_FN_HZ)):
+        iv = v[k]
+        if not isinstance(iv, list) or len(iv) != 2:
+            raise _bad(path, f"{name}.{k}", f"must be [low, high], got {iv!r}")
+        lo = _number(path, f"{name}.{k}[0]", iv[0], low=0.0)
+        hi = math.inf if iv[1] is None else _number(path, f"{name}.{k}[1]", iv[1], low=0.0)
+        if not lo <= value <= hi:
+            raise _bad(path, f"{name}.{k}", f"[{lo:g}, {hi:g}] does not hold the value {value:g}")
+        out.append((lo, hi))
+    return tuple(out)
+
+
 def _field(path, obj: dict, key: str, parent: str):
     if key not in obj:
         raise _bad(path, f"{parent}.{key}", "is missing")
@@ -422,11 +522,13 @@ def _load_gains(path, data, config: OdriveConfig) -> GainDesign:
             raise _bad(path, f"gains.{k}", f"= {v:g} is beyond the configured maximum {high:g} "
                                            f"({config.source_file}, [experiment] max_{k})")
         gains.append(v)
+    predicted = _zeta_fn(path, data, "predicted", True)
+    measured = _zeta_fn(path, data, "measured", True)
     return GainDesign(target=_zeta_fn(path, data, "target", False), gains=tuple(gains),
-                      method=_get(path, data, "method", str),
-                      predicted=_zeta_fn(path, data, "predicted", True),
-                      measured=_zeta_fn(path, data, "measured", True),
-                      source=_get(path, data, "source", dict))
+                      method=_get(path, data, "method", str), predicted=predicted, measured=measured,
+                      source=_get(path, data, "source", dict),
+                      measured_intervals=_zeta_fn_intervals(path, data, "measured", measured),
+                      predicted_intervals=_zeta_fn_intervals(path, data, "predicted", predicted))
 
 
 def load(path: str | Path, kind: str | None = None, config: str | Path | OdriveConfig = "thesis"):
@@ -487,21 +589,24 @@ def same(a, b) -> bool:
 
 
 def gain_design_from_map(gm, zeta: float, fn: float, sweep_dir: str | Path | None = None,
-                         measured=None) -> GainDesign:
-    """The map's answer for (zeta, fn [Hz]) as a :class:`GainDesign` (method ``"map"``);
-    the source records the sweep directory, the map's point counts and its gain axes."""
+                         measured=None, measured_intervals=None) -> GainDesign:
+    """The map's answer for (zeta, fn [Hz]) as a :class:`GainDesign` (method ``"map"``), its
+    prediction with the map's 90 % intervals; the source records the sweep directory, the
+    map's point counts and its gain axes."""
     c = gm.nearest(zeta, fn)
     return GainDesign(target=(zeta, fn), gains=c.gains, method="map", predicted=(c.zeta, c.fn), measured=measured,
                       source={"sweep_dir": None if sweep_dir is None else str(sweep_dir), "counts": gm.counts(),
-                              "axes": [list(map(float, a)) for a in gm.axes], "distance": c.distance})
+                              "axes": [list(map(float, a)) for a in gm.axes], "distance": c.distance},
+                      measured_intervals=measured_intervals, predicted_intervals=(c.zeta_interval, c.fn_interval))
 
 
 def gain_design_from_model(model, zeta: float, fn: float, vel_integrator_gain: float = 0.01,
-                           measured=None) -> GainDesign:
+                           measured=None, measured_intervals=None) -> GainDesign:
     """The gains a fitted :class:`leglib.design.plantfit.LegPlantModel` gives for (zeta, fn [Hz]) as
     a :class:`GainDesign` (method ``"model"``); the source records the fitted plant."""
     gains, pred = model.gains_for(zeta, fn, vel_integrator_gain=vel_integrator_gain)
     return GainDesign(target=(zeta, fn), gains=gains, method="model", predicted=pred, measured=measured,
+                      measured_intervals=measured_intervals,
                       source={"plant_params": dict(model.params), "experiments": model.experiments,
                               "rms_turns": model.rms_turns, "step_turns": model.step,
                               "duration_s": model.duration, "sample_period_s": model.sample_period})

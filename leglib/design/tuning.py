@@ -315,14 +315,14 @@ class Tuning:
         return tuple(float(p / m - 1) for p, m in zip(self.predicted, self.measured))
 
     def table(self) -> str:
-        """One line per experiment: role, gains, predicted and measured (zeta, fn)."""
+        """One line per experiment: role, gains, the model's predicted (zeta, fn) and the
+        measured ones with their 90 % intervals (or the step's status)."""
         rows = [f"{'#':>2} {'role':14s} {'pos_gain':>9s} {'vel_gain':>9s} {'vel_int':>8s} "
-                f"{'pred zeta':>9s} {'pred fn':>8s} {'meas zeta':>9s} {'meas fn':>8s}"]
+                f"{'pred zeta':>9s} {'pred fn':>8s}  measured zeta, fn [Hz] (90 % intervals)"]
         for i, e in enumerate(self.experiments, 1):
-            m = e.measured
-            meas = f"{m[0]:9.3f} {m[1]:8.2f}" if e.ok else f"{e.result.status:>18s}"
+            meas = e.result.text() if e.ok else e.result.status
             rows.append(f"{i:2d} {e.role:14s} {e.gains[0]:9.3f} {e.gains[1]:9.4f} {e.gains[2]:8.4f} "
-                        f"{e.predicted[0]:9.3f} {e.predicted[1]:8.2f} {meas}")
+                        f"{e.predicted[0]:9.3f} {e.predicted[1]:8.2f}  {meas}")
         return "\n".join(rows)
 
     def __str__(self) -> str:
@@ -432,10 +432,9 @@ def tune(odrv, zeta: float, fn: float, max_experiments: int = 10, *, vel_integra
                        identify_response(resp, dev.leg))
         experiments.append(e)
         if progress:
-            m = e.measured
             print(f"  experiment {len(experiments)}/{max_experiments} ({role}): gains "
                   f"({gains[0]:.3f}, {gains[1]:.4f}, {gains[2]:.4f}) -> "
-                  + (f"zeta {m[0]:.3f}, fn {m[1]:.2f} Hz" if e.ok else e.result.status), flush=True)
+                  + (f"{e.result.text()} (90 % intervals)" if e.ok else e.result.status), flush=True)
         if on_experiment is not None:
             on_experiment(e)
         return e

@@ -8,17 +8,28 @@ flagged. This is the measure of the thesis's Fig. 6.12, its target (zeta 0.24, 5
 validation result (0.229, 5.06 Hz); it is strongly biased against the true zeta (see
 :mod:`leglib.thesis`). Apply it to the listing's own signal,
 :func:`leglib.model.kinematics.thesis_listing_height` of the zeroed angles in degrees.
+
+A reading whose first two peaks are the oscillation's (:attr:`ThesisReading.usable`) carries
+90 % intervals of its zeta and its 1/(t2 - t1) (:class:`ReadingIntervals`): the doubt of what
+the listing reads of this response, from the doubt of the two peak values it divides (the
+record's sample noise, the encoder's quantization at each crest, the sample grid) and of the
+two peak times. They bound the listing's own reading, not the true zeta, from which it is
+biased by far more (:mod:`leglib.thesis`). A reading the listing fails on has none, and says
+why (:attr:`ThesisReading.interval_reason`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from statistics import NormalDist
 
 import numpy as np
+from scipy.signal import savgol_filter
 
 from .. import checks, plots
 from ..errors import IdentificationError
+from ..units import interval_text
 
 #: a second peak whose prominence (its height above the lowest point between the first two
 #: peaks) is below this part of the step of smooth(-y) is ripple on the settled tail, not the
@@ -30,6 +41,14 @@ RIPPLE = 0.01
 # 100 000, and the fit of 1 000 000 takes tens of seconds; longer records are refused with
 # the advice to decimate them (y[::k], t[::k]), never cut or decimated silently
 MAX_SAMPLES = 250_000
+
+#: the confidence level of the intervals quoted for identified values (the fit's zeta, fn, fd
+#: and Listing 7.7's readings)
+LEVEL = 0.90
+#: the local fit whose residual measures a record's sample noise: a cubic over 11 samples
+#: (22 ms at Listing 7.4's 2 ms) follows an oscillation of up to about 25 Hz and leaves the
+#: sample-to-sample noise
+NOISE_WINDOW, NOISE_ORDER = 11, 3
 
 
 def _series(t, y, min_samples: int, names=("t", "y")):
@@ -93,6 +112,11 @@ class ThesisReading:
     method: str = "thesis"
     peak_index: np.ndarray = None
     record_end: float = float("nan")
+    #: :class:`ReadingIntervals` of a usable reading (None otherwise: see ``interval_reason``)
+    intervals: object = field(default=None, repr=False, compare=False)
+    #: why the first two peaks are not told apart by their doubt (:func:`add_intervals`;
+    #: a failure, see :attr:`failure`), or None
+    interval_failure: str | None = field(default=None, repr=False, compare=False)
 
     @property
     def n_peaks(self) -> int:
@@ -118,19 +142,36 @@ class ThesisReading:
         return float((self.peak_values[1] - sm[i1:i2 + 1].min()) / step) if step > 0 else float("nan")
 
     @property
+    def failure(self) -> str | None:
+        """The kind of an outright failure of the listing on this response, or None:
+        ``"flagged"`` (fewer than two peaks: its constants), ``"ripple"`` (the second peak is
+        ripple of the settled tail), ``"unresolved"`` (the two peaks are not told apart by
+        their doubt: within the record's noise and the encoder's resolution smooth(-y) does not
+        fall between them, e.g. a noise bump on the rise taken for the first peak). A reading
+        with more peaks than cycles is not one: its first two peaks are the oscillation's."""
+        if self.flagged:
+            return "flagged"
+        if self.second_peak_prominence < RIPPLE:
+            return "ripple"
+        if self.interval_failure:
+            return "unresolved"
+        return None
+
+    @property
     def usable(self) -> bool:
-        """True when the listing's first two peaks are the oscillation's: at least two, and the
+        """True when the listing's first two peaks are the oscillation's: at least two, the
         second not ripple of the settled tail (prominence at least :data:`RIPPLE` of the
-        step). Only such readings say what Listing 7.7 reads of a response."""
-        return not self.flagged and not self.second_peak_prominence < RIPPLE
+        step), and the two told apart by more than their doubt (:attr:`failure`). Only such
+        readings say what Listing 7.7 reads of a response, and only they have intervals."""
+        return self.failure is None
 
     @property
     def problem(self) -> str | None:
         """Why Listing 7.7 fails on this response, or None: fewer than two peaks (its
-        constants), a second peak that is ripple of the settled tail, or more peaks than an
-        oscillation at the reading's own frequency has in the record (findpeaks counts the
-        quantized tail's ripple; the first two may still be the oscillation's, see
-        :attr:`usable`)."""
+        constants), a second peak that is ripple of the settled tail, two peaks not told
+        apart by their doubt, or more peaks than an oscillation at the reading's own
+        frequency has in the record (findpeaks counts the quantized tail's ripple; the first
+        two may still be the oscillation's, see :attr:`usable`)."""
         if self.flagged:
             return (f"fewer than two peaks ({self.n_peaks}): the listing returns its constant zeta = "
                     f"{self.zeta:g}, no reading")
@@ -138,12 +179,56 @@ class ThesisReading:
         if prom < RIPPLE:
             return (f"its second 'peak' is ripple of the settled tail (prominence {prom:.2%} of the step, under "
                     f"{RIPPLE:.0%}): the reading measures the encoder's quantization, not the oscillation")
+        if self.interval_failure:
+            return self.interval_failure
         cycles = (self.record_end - self.peak_times[0]) * self.fd + 1
         if np.isfinite(cycles) and self.n_peaks > cycles + 1:
             return (f"findpeaks finds {self.n_peaks} peaks where an oscillation at the reading's own "
                     f"{self.fd:.2f} Hz has at most {int(cycles) + 1} in the record: it counts the quantized tail's "
                     f"ripple as peaks (its first two are the oscillation's here)")
         return None
+
+    @property
+    def interval_reason(self) -> str | None:
+        """Why the reading has no interval (None when it has one): the listing fails on the
+        response (:attr:`problem`, no reading to give an interval to)."""
+        if self.intervals is not None:
+            return None
+        if not self.usable:
+            return f"no reading: {self.problem}"
+        return "no interval computed (add_intervals)"
+
+    @property
+    def zeta_interval(self) -> tuple:
+        """90 % interval (low, high) of the listing's zeta; (NaN, NaN) without one."""
+        return self.intervals.zeta if self.intervals is not None else (math.nan, math.nan)
+
+    @property
+    def fd_interval(self) -> tuple:
+        """90 % interval (low, high) [Hz] of the listing's 1/(t2 - t1); (NaN, NaN) without one."""
+        return self.intervals.fd if self.intervals is not None else (math.nan, math.nan)
+
+    def text(self) -> str:
+        """"zeta 0.0460 [0.0458, 0.0462], 1/(t2 - t1) 4.67 [4.6, 4.8] Hz (Listing 7.7, 90 %
+        intervals)", or why the listing gives no reading (its constant, tail ripple) or no
+        interval."""
+        if self.intervals is None:
+            if not self.usable:
+                return f"Listing 7.7 fails: {self.problem}"
+            return (f"zeta {self.zeta:.4g}, 1/(t2 - t1) {self.fd:.3g} Hz (Listing 7.7; no interval: "
+                    f"{self.interval_reason})")
+        return (f"zeta {interval_text(self.zeta, self.zeta_interval)}, 1/(t2 - t1) "
+                f"{interval_text(self.fd, self.fd_interval)} Hz (Listing 7.7, {100 * self.intervals.level:.0f} % intervals)")
+
+    def to_dict(self) -> dict:
+        """Plain values for a metrics file: the reading, its intervals (or why none) and why
+        the listing fails, if it does."""
+        nan = [math.nan, math.nan]
+        return {"zeta": self.zeta, "f_hz": self.fd if self.n_peaks >= 2 else math.nan, "n_peaks": self.n_peaks,
+                "usable": self.usable, "problem": self.problem,
+                "zeta_interval": list(self.zeta_interval) if self.intervals is not None else nan,
+                "f_interval": list(self.fd_interval) if self.intervals is not None else nan,
+                "interval_reason": self.interval_reason}
 
     def plot(self, t, ax=None):
         """Listing 7.7's view of the step at times ``t``: smooth(-y) with the peaks it found
@@ -154,9 +239,13 @@ class ThesisReading:
         how = "flagged: the listing's constant (fewer than two peaks)" if self.flagged else f"{self.n_peaks} peaks"
         if self.problem and not self.flagged:
             how += f"; **the listing fails here**: {self.problem}"
-        fd = f"{self.fd:.3f}" if self.n_peaks >= 2 else "–"
-        return ("| ζ (Listing 7.7) | 1/(t2 − t1) [Hz] | |\n|---|---|---|\n"
-                f"| {self.zeta:.4f} | {fd} | thesis measure, {how} |")
+        if self.intervals is not None:
+            zeta, fd = interval_text(self.zeta, self.zeta_interval), interval_text(self.fd, self.fd_interval)
+        else:
+            zeta, fd = f"{self.zeta:.4f}", (f"{self.fd:.3f}" if self.n_peaks >= 2 else "–")
+            how += f"; no interval: {self.interval_reason}" if self.usable else ""
+        return ("| ζ (Listing 7.7) [90 % interval] | 1/(t2 − t1) [Hz] | |\n|---|---|---|\n"
+                f"| {zeta} | {fd} | thesis measure, {how} |")
 
     @property
     def listing_output(self) -> tuple[float, float]:
@@ -212,6 +301,14 @@ def matlab_findpeaks(x) -> np.ndarray:
 
 
 def _thesis_reading(t, y) -> ThesisReading:
+    """Listing 7.7 on (``t``, ``y``), with the intervals of a usable reading from the
+    record's noise alone (:func:`add_intervals`; a quantized record's callers add the
+    encoder's resolution, as :func:`leglib.thesis.read_angles` does)."""
+    reading = _listing(t, y)
+    return add_intervals(reading, t, y)
+
+
+def _listing(t, y) -> ThesisReading:
     t, y = _series(t, y, 3)
     inv = matlab_smooth(-y)
     i = matlab_findpeaks(inv)
@@ -231,3 +328,155 @@ def _thesis_reading(t, y) -> ThesisReading:
         fd = 1.0 / (locs[1] - locs[0])
     return ThesisReading(float(zeta), float(fd), float(delta), locs, pks, inv, peak_index=i,
                          record_end=float(t[-1]))
+
+
+# ---------------------------------------------------------------------------------------
+# the doubt of a reading
+# ---------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class ReadingIntervals:
+    """Intervals of a Listing 7.7 reading at confidence ``level``, in the listing's measure.
+
+    The listing reads one pair of peaks: zeta from delta = ln(pks(2)/pks(1)) of the first two
+    peak values of smooth(-y), 1/(t2 - t1) from their times. There is no average over
+    successive peak pairs whose scatter could give a standard error (the listing takes the
+    first pair only, and the decrements of later pairs of raw peak values differ
+    systematically, as the peaks close in on the final value), so the doubt is propagated
+    from that of the two peaks:
+
+    - **a peak value's standard deviation** ``peak_sd`` [unit of y] combines (in quadrature)
+      the record's sample noise ``noise`` (:func:`sample_noise`), taken whole: at a crest the
+      signal is flat over the listing's 5-point smoothing, so the encoder's quantization error
+      is the same in all five samples and the smoothing does not reduce it, and findpeaks takes
+      the largest of the near-crest samples, which undoes the averaging of white noise; the
+      encoder's quantization at the crest, ``quantization`` (the standard deviation of a
+      rounding to whole counts, one count / sqrt(12) per joint, given by the caller that knows
+      the counts); and the sample grid, which may miss the crest by up to half a sample, i.e.
+      up to c/4 below it for a crest of curvature c per sample^2 (uniform: c / (4 sqrt(12))).
+    - **delta**: ``delta -+ z sd``, sd^2 = (sd1/p1)^2 + (sd2/p2)^2 (independent peaks, z the
+      normal quantile of ``level``, 1.645); **zeta** = delta / sqrt(4 pi^2 + delta^2) is
+      increasing in delta, so its interval is the image of delta's.
+    - **the peak times** ``peak_spans`` [s]: under that doubt the listing could have put a
+      peak at any sample of smooth(-y) within z sd of the crest's value (a broad or flat crest
+      leaves it a span of samples, and findpeaks reports a plateau at its first), and at
+      another phase of the sampling grid half a sample further; **1/(t2 - t1)** takes the
+      extremes of both spans (a bound, at least ``level``).
+
+    What they bound is the listing's reading of this record without its measurement error,
+    not the reading of another run of the same experiment (one record does not show how
+    much the leg's motion itself differs from run to run) nor the true zeta. Checked on
+    synthetic steps with noise and quantization (tests/identify/test_intervals.py): they hold
+    the listing's noise-free reading of the same step in at least 80 % of the repetitions
+    (about all of them: taking the noise whole makes them conservative, the 90th percentile
+    of the error is about half the half-width). Where the two peaks' spans touch, the
+    reading is not defined by its data: a failure, no interval (:attr:`ThesisReading.failure`).
+    """
+
+    level: float
+    zeta: tuple
+    fd: tuple
+    delta: tuple
+    peak_sd: tuple
+    peak_spans: tuple
+    noise: float
+    quantization: tuple
+
+    def to_dict(self) -> dict:
+        return {"level": self.level, "zeta": list(self.zeta), "fd": list(self.fd), "delta": list(self.delta),
+                "peak_sd": list(self.peak_sd), "peak_spans": [list(x) for x in self.peak_spans],
+                "noise": self.noise, "quantization": list(self.quantization)}
+
+
+def sample_noise(y) -> float:
+    """The standard deviation of ``y``'s sample-to-sample noise [unit of y]: the robust
+    (median absolute deviation) spread of its residual from a local cubic
+    (Savitzky-Golay, :data:`NOISE_WINDOW` samples), divided by sqrt(1 - h0), h0 the local
+    fit's weight of the sample itself (white noise of standard deviation s leaves a residual
+    of s sqrt(1 - h0)). The median keeps the step's onset, where the local cubic does not
+    follow, from counting as noise. 0 for a record shorter than the window."""
+    y = np.asarray(y, float)
+    if y.size < NOISE_WINDOW:
+        return 0.0
+    r = y - savgol_filter(y, NOISE_WINDOW, NOISE_ORDER)
+    h0 = float(savgol_filter(np.eye(NOISE_WINDOW)[NOISE_WINDOW // 2], NOISE_WINDOW, NOISE_ORDER,
+                             mode="constant")[NOISE_WINDOW // 2])
+    mad = float(np.median(np.abs(r - np.median(r))))
+    return 1.4826 * mad / math.sqrt(1.0 - h0)
+
+
+def _z(level: float) -> float:
+    if not 0 < level < 1:
+        raise ValueError(f"level must lie in (0, 1), got {level!r}")
+    return NormalDist().inv_cdf(0.5 + level / 2)
+
+
+def _crest_span(sm, i: int, floor: float, lo: int, hi: int) -> tuple[int, int]:
+    """The samples around ``i`` (within ``lo`` .. ``hi``) where smooth(-y) stays at or above
+    ``floor``: where the listing could put this crest under its doubt."""
+    a = i
+    while a - 1 >= lo and sm[a - 1] >= floor:
+        a -= 1
+    b = i
+    while b + 1 <= hi and sm[b + 1] >= floor:
+        b += 1
+    return a, b
+
+
+def add_intervals(reading: ThesisReading, t, y, quantization=(0.0, 0.0), level: float = LEVEL) -> ThesisReading:
+    """Set the :class:`ReadingIntervals` of a usable ``reading`` of (``t`` [s], ``y``); a reading
+    the listing fails on keeps none (:attr:`ThesisReading.interval_reason` says why).
+
+    Parameters
+    ----------
+    reading : the :class:`ThesisReading` of (t, y)
+    t, y : the record it was read from
+    quantization : the standard deviation [unit of y] of the encoder's rounding at the first
+        and the second peak: a count's change of y at each joint's angle there, / sqrt(12),
+        summed in quadrature over the joints (:func:`leglib.thesis.read_angles`); 0 for a
+        record that is not quantized or whose counts are unknown
+    level : confidence level (default :data:`LEVEL`)
+
+    Returns
+    -------
+    ``reading``, its ``intervals`` (and ``interval_failure``) set.
+    """
+    reading.intervals, reading.interval_failure = None, None
+    if not reading.usable or reading.peak_index is None:   # the listing's own failures: no reading
+        return reading
+    t, y = _series(t, y, 3)
+    z = _z(level)
+    sm, idx, pk = reading.smoothed, reading.peak_index, reading.peak_values
+    n = sm.size
+    noise = sample_noise(y)
+    quant = tuple(float(abs(q)) for q in quantization)
+    if len(quant) != 2 or not all(math.isfinite(q) for q in quant):
+        raise ValueError(f"quantization must be two finite standard deviations, got {quantization!r}")
+    dt = float(np.median(np.diff(t)))
+    sds, spans = [], []
+    for k in (0, 1):
+        i = int(idx[k])
+        # the crest's curvature per sample^2 (smooth(-y) has a maximum there: second difference <= 0)
+        c = max(-(sm[min(i + 1, n - 1)] - 2 * sm[i] + sm[max(i - 1, 0)]), 0.0)
+        grid = c / 4 / math.sqrt(12)
+        sds.append(math.sqrt(noise ** 2 + quant[k] ** 2 + grid ** 2))
+    # each crest's span of samples within z sd of its value, kept apart from the other crest
+    i1, i2 = int(idx[0]), int(idx[1])
+    a1, b1 = _crest_span(sm, i1, pk[0] - z * sds[0], 0, i2)
+    a2, b2 = _crest_span(sm, i2, pk[1] - z * sds[1], i1, n - 1)
+    if b1 >= i2 or a2 <= i1 or b1 + 1 >= a2:
+        reading.interval_failure = (f"its first two 'peaks' are not told apart by their doubt: between them "
+                                    f"smooth(-y) stays within {z:.3g} standard deviations ({max(sds):.2g}) of a "
+                                    f"crest (a noise bump taken for a peak), so the reading is not the oscillation's")
+        return reading
+    spans = ((float(t[a1] - dt / 2), float(t[b1] + dt / 2)), (float(t[a2] - dt / 2), float(t[b2] + dt / 2)))
+    h = z * math.hypot(sds[0] / pk[0], sds[1] / pk[1])
+    delta = (reading.delta - h, reading.delta + h)
+
+    def zeta_of(d):
+        return d / math.sqrt((2 * math.pi) ** 2 + d ** 2)
+
+    fd = (1.0 / (spans[1][1] - spans[0][0]), 1.0 / (spans[1][0] - spans[0][1]))
+    reading.intervals = ReadingIntervals(level, (zeta_of(delta[0]), zeta_of(delta[1])), fd, delta,
+                                         tuple(sds), spans, noise, quant)
+    return reading

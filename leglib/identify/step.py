@@ -69,7 +69,7 @@ from .fastfit import (
     model,
     refit_from,
 )
-from .listing77 import MAX_SAMPLES, _series, _thesis_reading
+from .listing77 import LEVEL, MAX_SAMPLES, _crest_span, _series, _thesis_reading, sample_noise
 
 
 @dataclass
@@ -161,16 +161,54 @@ def _logdec(t, y, y0, yf, step):
         if later.size:
             pairs.append((p, later[0]))
     if len(pairs) < 2:
-        return None, len(peaks)
+        return None, len(peaks), None
     (p1, v1), (p2, v2) = pairs[0], pairs[1]
     a1, a2 = dev[p1] - dev[v1], dev[p2] - dev[v2]
     if a2 <= 0 or a1 <= a2:
-        return None, len(peaks)
+        return None, len(peaks), None
     delta = math.log(a1 / a2)
     zeta = delta / math.sqrt(4 * math.pi ** 2 + delta ** 2)
     fd = 1.0 / (t[p2] - t[p1])
     wn = 2 * math.pi * fd / math.sqrt(1 - zeta ** 2)
-    return (zeta, wn), len(peaks)
+    return (zeta, wn), len(peaks), (dev, (p1, v1, p2, v2))
+
+
+def _logdec_intervals(t, y, step, dev, extrema, level: float) -> FitIntervals | None:
+    """90 % intervals of the corrected log decrement's zeta, fn and fd, propagated from the
+    doubt of the four extremes it reads (two peaks, two valleys of the smoothed deviation
+    ``dev``), as Listing 7.7's reading is (:class:`leglib.identify.listing77.ReadingIntervals`:
+    the record's sample noise taken whole at each extreme, the sample grid's miss of the
+    crest; no average over further periods to take a scatter from, since only the first two
+    are read): delta = ln(a1/a2) -+ z sd with sd^2 = var(a1)/a1^2 + var(a2)/a2^2, zeta its
+    image; fd from the spans of samples within z sd of the two peaks (their extremes, a
+    bound) and fn = fd / sqrt(1 - zeta^2) from both. ``se`` holds each half-width / z and
+    ``model_error`` nothing (0): the interval is the propagation's alone. None when the two
+    peaks are not told apart by their doubt."""
+    z = _normal_quantile(level)
+    noise = sample_noise(y) / abs(step)
+    n = dev.size
+    sds = {}
+    for i in extrema:
+        c = abs(dev[min(i + 1, n - 1)] - 2 * dev[i] + dev[max(i - 1, 0)])
+        sds[i] = math.hypot(noise, c / 4 / math.sqrt(12))
+    p1, v1, p2, v2 = extrema
+    a1, a2 = dev[p1] - dev[v1], dev[p2] - dev[v2]
+    h = z * math.sqrt((sds[p1] ** 2 + sds[v1] ** 2) / a1 ** 2 + (sds[p2] ** 2 + sds[v2] ** 2) / a2 ** 2)
+    delta = math.log(a1 / a2)
+    b1 = _crest_span(dev, p1, dev[p1] - z * sds[p1], 0, p2)
+    b2 = _crest_span(dev, p2, dev[p2] - z * sds[p2], p1, n - 1)
+    if b1[1] + 1 >= b2[0]:
+        return None
+    dt = float(np.median(np.diff(t)))
+    fd = (1.0 / (t[b2[1]] - t[b1[0]] + dt), 1.0 / (t[b2[0]] - t[b1[1]] - dt))
+
+    def zeta_of(d):
+        return d / math.sqrt(4 * math.pi ** 2 + d ** 2)
+
+    zi = (max(zeta_of(delta - h), 0.0), zeta_of(delta + h))
+    fn = (fd[0] / math.sqrt(1 - zi[0] ** 2), fd[1] / math.sqrt(1 - zi[1] ** 2))
+    se = {k: (hi - lo) / 2 / z for k, (lo, hi) in (("zeta", zi), ("fn", fn), ("fd", fd))}
+    return FitIntervals(level, zi, fn, fd, se, {"zeta": 0.0, "fn": 0.0, "fd": 0.0})
 
 
 def _r2(y, yhat):
@@ -195,9 +233,12 @@ def second_order(t, y, method: str = "fit", intervals: bool = False):
         "fit" (least squares, default) and "corrected_logdec" (a corrected logarithmic
         decrement; "logdec" is the same) give the true zeta, wn; "thesis" is Listing 7.7
         exactly, in the thesis's measure.
-    intervals : with "fit", also compute the fit's :class:`FitIntervals` (90 % intervals of
-        zeta, fn, fd: residual-corrected standard errors widened by the model error),
-        ``.intervals``
+    intervals : also compute :class:`FitIntervals` (90 % intervals of zeta, fn, fd),
+        ``.intervals``: with "fit", residual-corrected standard errors widened by the model
+        error; with "corrected_logdec", the doubt of the extremes it reads propagated
+        (:func:`_logdec_intervals`; None where its two peaks are not told apart by it).
+        Listing 7.7's readings ("thesis") always carry theirs
+        (:class:`leglib.identify.listing77.ReadingIntervals`)
 
     Returns
     -------
@@ -219,16 +260,19 @@ def second_order(t, y, method: str = "fit", intervals: bool = False):
         return fit
     t, y, y0, yf, step = _validate(t, y)
     t = t - t[0]
-    est, n_peaks = _logdec(t, y, y0, yf, step)
+    est, n_peaks, read = _logdec(t, y, y0, yf, step)
     if method in ("corrected_logdec", "logdec"):
         if est is None:
             # no oscillation to measure: report the fit's zeta, flagged, never a constant
-            fit = second_order(t, y, method="fit")
+            fit = second_order(t, y, method="fit", intervals=intervals)
             fit.method = "corrected_logdec->fit"
             return fit
         zeta, wn = est
         yhat = model(t, zeta, wn, step, y0, 0.0)
-        return SecondOrderFit(zeta, wn, step, y0, 0.0, "corrected_logdec", _r2(y, yhat), n_peaks, False)
+        fit = SecondOrderFit(zeta, wn, step, y0, 0.0, "corrected_logdec", _r2(y, yhat), n_peaks, False)
+        if intervals:
+            fit.intervals = _logdec_intervals(t, y, step, *read, LEVEL)
+        return fit
 
 
 def standard_errors(fit: "SecondOrderFit", t, y) -> dict:
@@ -285,8 +329,8 @@ def _autocorrelation_time(r: np.ndarray) -> float:
     return 1.0 + 2.0 * float(np.sum(acf[1:1 + (neg[0] if neg.size else m - 1)]))
 
 
-#: the confidence level of the intervals quoted for zeta, fn and fd
-LEVEL = 0.90
+# LEVEL (0.90), the confidence level of the intervals quoted for zeta, fn and fd, is
+# leglib.identify.listing77's, shared with Listing 7.7's readings
 #: the leading parts of a record the model-error term refits (fractions of its samples)
 WINDOWS = (0.5, 2.0 / 3.0, 5.0 / 6.0)
 

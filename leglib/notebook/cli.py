@@ -230,16 +230,18 @@ def _design(args) -> int:
         result = tune(dev, args.zeta, args.fn, args.max_experiments, progress=True, max_minutes=args.max_minutes)
         if args.save:
             measured = result.measured if all(math.isfinite(x) for x in result.measured) else None
+            # the final check's 90 % intervals, stored beside what they qualify
             design = saved.GainDesign(result.target, result.gains, "tune", result.predicted, measured,
                                       {"experiments": len(result.experiments), "reached": bool(result.reached),
-                                       "tolerance": result.tolerance})
+                                       "tolerance": result.tolerance, "verdict": result.verdict},
+                                      measured_intervals=result.intervals if measured is not None else None)
             path = saved.save(args.save, design, device=dev,
                               note=f"python -m leglib design --zeta {args.zeta:g} --fn {args.fn:g}")
     print(result)
     print(result.table())
     print(run.report())
     if args.save:
-        print(f"wrote {path}")
+        print(f"wrote {path}: {design}")
     return 0 if result.reached else 1
 
 

@@ -15,7 +15,7 @@ import re
 from pathlib import Path
 
 from ..identify.friction import FrictionFit, LegFrictionFit
-from ..units import dynamics_text, interval_text, significant
+from ..units import dynamics_text, interval_text, percent_interval_text, significant
 
 
 def read_metrics(path) -> dict:
@@ -36,6 +36,23 @@ def _dyn(d: dict, zeta: str = "zeta", fn: str = "fn") -> str:
 
 def _pct(x: float, digits: int = 1, sign: bool = True) -> str:
     return f"{100 * x:{'+' if sign else ''}.{digits}f} %"
+
+
+def _listing(th: dict, zeta: str = "zeta", f: str = "f_hz") -> str:
+    """ "zeta 0.0460 [0.0458, 0.0462] at 4.67 [4.6, 4.8] Hz" of a Listing 7.7 reading's metrics
+    (its 90 % intervals, :class:`leglib.identify.listing77.ReadingIntervals`)."""
+    return (f"zeta {interval_text(th[zeta], th[f'{zeta}_interval'])} at "
+            f"{interval_text(th[f], th[f.replace('_hz', '') + '_interval'])} Hz")
+
+
+def _reach(reach: dict) -> str:
+    """ "0.0460 [0.0458, 0.0462] (90 % interval; no usable reading's interval reaches above
+    0.0463)": Listing 7.7's largest reading over a sweep with its doubt."""
+    text = interval_text(reach["max_thesis_zeta"], reach.get("max_thesis_zeta_interval"))
+    upper = reach.get("max_thesis_zeta_upper", math.nan)
+    if math.isfinite(upper):
+        text += f" (90 % interval; no usable reading's interval reaches above {significant(upper, 3)})"
+    return text
 
 
 # ---------------------------------------------------------------------------------------
@@ -121,13 +138,49 @@ def friction(m: dict) -> str:
     s = m["step_fit"]
     out.append(f"- The Fig. 6.9 step identifies as {_dyn(s)} (90 % intervals; R² {s['r2']:.3f}).")
     th = m["step_thesis_reading"]
-    if th["problem"]:
-        out.append(f"- Listing 7.7 on the same step reads zeta {th['zeta']:.3f}, but **the listing fails here**: "
-                   f"{th['problem']}.")
+    if not th["usable"]:
+        out.append(f"- Listing 7.7 gives no reading of the same step: **the listing fails here**: {th['problem']}.")
+    elif th["problem"]:
+        out.append(f"- Listing 7.7 on the same step reads {_listing(th)} (90 % intervals) from its first two peaks, "
+                   f"which are the oscillation's, but **the listing fails here**: {th['problem']}.")
     else:
-        out.append(f"- Listing 7.7 on the same step reads zeta {th['zeta']:.3f} at {th['f_hz']:.2f} Hz "
-                   f"(its own, biased measure).")
+        out.append(f"- Listing 7.7 on the same step reads {_listing(th)} (90 % intervals; its own, biased measure).")
     return "\n".join(out)
+
+
+# ---------------------------------------------------------------------------------------
+# 03: the thesis's design played back
+# ---------------------------------------------------------------------------------------
+
+def thesis_playback(m: dict) -> str:
+    """Notebook 03, section 2: the thesis design's torque table played back on the leg
+    against its nonlinear model (Figs. 5.6, 5.7), and what in the design model explains the
+    difference, from ``m``: ``model`` and ``playback``
+    (:func:`leglib.design.statefeedback.response_metrics` of the two runs), ``viscous``
+    (the design model's joint damping [N*m*s/rad]), ``k22_listing`` and ``k22_exact``
+    (joint 2's gravity stiffness [N*m/rad] in Listing 7.5's decoupled form and the exact
+    five-bar, :func:`leglib.thesis.g2_sign_check`) and ``step_deg``. The thesis saw the leg
+    run up faster than its model and both end beyond the setpoint; whether this leg does
+    is read off the runs."""
+    sim, play = m["model"], m["playback"]
+    faster = math.isfinite(play["rise_time"]) and math.isfinite(sim["rise_time"]) and play["rise_time"] < sim["rise_time"]
+    rise = (f"rises in {play['rise_time']:.3f} s against the model's {sim['rise_time']:.3f} s"
+            if math.isfinite(play["rise_time"]) and math.isfinite(sim["rise_time"]) else
+            "does not reach 90 % of the step" if not math.isfinite(play["rise_time"]) else
+            f"rises in {play['rise_time']:.3f} s; the model never reaches 90 % of the step")
+    both_over = play["overshoot_pct"] > 0 and sim["overshoot_pct"] > 0
+    same = faster and both_over
+    out = [f"{'As in the thesis' if same else 'Unlike the thesis (Figs. 5.6, 5.7: faster than the model, both beyond the setpoint)'}"
+           f", the leg played back {rise} and overshoots by {play['overshoot_pct']:.1f} % (the model "
+           f"{sim['overshoot_pct']:.1f} %); it ends {play['final_error_pct']:.2f} % of the step from the setpoint (the "
+           f"model {sim['final_error_pct']:.2f} %)."]
+    rel = m["k22_listing"] / m["k22_exact"] - 1
+    out.append(f"The design model holds chapter 5's joint damping ({m['viscous']:.3f} N·m·s/rad) and is Listing 7.5's "
+               f"decoupled form: its gravity stiffness on joint 2 (the listing's +m4·lc4, the sign this geometry "
+               f"supports) is {m['k22_listing']:.3f} N·m/rad, {_pct(abs(rel), 0, False)} "
+               f"{'above' if rel > 0 else 'below'} the exact five-bar's {m['k22_exact']:.3f}, and it drops the "
+               f"joints' coupling, so Nbar misjudges the torque a {m['step_deg']:g}° step needs.")
+    return " ".join(out)
 
 
 # ---------------------------------------------------------------------------------------
@@ -153,15 +206,15 @@ def sweeps(m: dict) -> str:
                    f"{_dyn(t)} (90 % intervals).")
     reach = m["listing_reach"]
     if reach["points"]:
-        out.append(f"- In the thesis's measure Listing 7.7 reads at most zeta {reach['max_thesis_zeta']:.3f} over the "
+        out.append(f"- In the thesis's measure Listing 7.7 reads at most zeta {_reach(reach)} over the "
                    f"{reach['points']} points with a usable reading; the thesis read {reach['thesis_result_zeta']:.3f} "
                    f"on its leg.")
     b = m["thesis_reading_bias"]["grid"]
-    fails = b["ripple"] + b["flagged"]
+    fails = b["ripple"] + b["flagged"] + b.get("unresolved", 0)
     if fails:
         out.append(f"- Listing 7.7 fails outright on {fails} of the second-order steps (its second peak is the "
-                   f"settled tail's ripple, or fewer than two peaks) and counts more peaks than cycles on "
-                   f"{b['many_peaks']} more.")
+                   f"settled tail's ripple, fewer than two peaks, or two peaks its noise does not tell apart: no "
+                   f"reading, no interval) and counts more peaks than cycles on {b['many_peaks']} more.")
     if b["points"]:
         z = b["zeta_rel_error_min_median_max"]
         out.append(f"- Where both measures read a step, Listing 7.7's zeta lies {_pct(z[1])} (median) from the true "
@@ -181,17 +234,22 @@ def validation(m: dict) -> str:
     tm = m["thesis_measure"]
     reach = tm["listing_reach"]
     target = tm["target"]
+    th = m["thesis_reading"]
+    if th["usable"]:
+        step = (f"The step at the gains nearest the target reads {_listing(th)} (90 % intervals), "
+                f"{percent_interval_text(tm['error_zeta'], tm['error_zeta_interval'])} from the target's zeta.")
+    else:
+        step = f"Listing 7.7 gives no reading of the step at the gains nearest the target: {th['problem']}."
     if tm["reached"]:
         out.append(f"- **In the thesis's own measure** the twin reaches the thesis's target (zeta {target['zeta']:.2f} "
-                   f"at {target['f_hz']:.2f} Hz by Listing 7.7) within 10 %.")
+                   f"at {target['f_hz']:.2f} Hz by Listing 7.7): {tm['verdict']} (tolerance "
+                   f"{_pct(tm['tolerance'], 0, False)}). {step}")
     elif reach["points"]:
         out.append(f"- **In the thesis's own measure the twin does not reproduce the thesis.** Listing 7.7 reads at "
-                   f"most zeta {reach['max_thesis_zeta']:.3f} on any of the {reach['points']} swept points with a "
+                   f"most zeta {_reach(reach)} on any of the {reach['points']} swept points with a "
                    f"usable reading, where the thesis measured {reach['thesis_result_zeta']:.3f} on its leg and "
                    f"targeted {target['zeta']:.2f}: the twin's least-damped second-order steps (true zeta "
-                   f"{reach['min_true_zeta']:.2f}) decay too fast between the first two peaks. The step at the "
-                   f"gains nearest the target reads zeta {m['thesis_reading']['zeta']:.3f} "
-                   f"({_pct(tm['error_zeta'])} from the target).")
+                   f"{reach['min_true_zeta']:.2f}) decay too fast between the first two peaks. {step}")
     else:
         out.append("- **In the thesis's own measure** Listing 7.7 reads no swept point of the twin: it fails on "
                    "every one.")
@@ -217,6 +275,105 @@ def validation(m: dict) -> str:
                    f"{a['reached']} of {a['targets']} targets confirmed within the tolerance by their intervals, "
                    f"{a['undecided']} with intervals wider than the tolerance (the response's model error is larger "
                    f"than it).")
+    return "\n".join(out)
+
+
+# ---------------------------------------------------------------------------------------
+# the robustness table (notebook 05, section 4)
+# ---------------------------------------------------------------------------------------
+
+#: the methods of the robustness table that rest on a structure they identify (and a leg can
+#: lack), with what that structure is; the others measure the leg
+STRUCTURE = {
+    "friction": "**Friction identification** (notebook 02) fits tanh Coulomb + viscous friction on a rigid "
+                "five-bar",
+    "state feedback: live": "**State feedback run live** (notebook 03) closes the loop with the identified leg's "
+                            "linear model",
+    "state feedback: playback": "**The played-back torque table** (notebook 03) is the identified leg's model run "
+                                "open loop",
+    "model": "**The fitted leg model** (`fit_leg_plant`) assumes the twin's own structure",
+}
+MEASURES = {
+    "second order": "**The second-order identification** fits each measured step",
+    "map": "**The map** measures a full sweep of steps",
+    "design": "**`lg.tune`** measures a few steps per target",
+}
+
+
+def _cells(doc: dict, method: str) -> dict:
+    """{plant: score} of ``method`` in a robustness table's JSON."""
+    return {p: row[method] for p, row in doc["scores"].items() if method in row}
+
+
+def _worst(score: dict) -> str:
+    w = score["worst"]
+    return _pct(w, sign=False) if w is not None and math.isfinite(w) else "no number"
+
+
+def robustness(doc: dict) -> str:
+    """"Reading the table": what the robustness table (``doc``, the JSON
+    :func:`leglib.evaluation.robustness.write` wrote, or its copy in notebook 05's metrics)
+    says, method by method, written from its numbers: where each method degrades (the
+    table's own rule, its ``degraded`` list: worst error above 5 % and above twice the
+    default plant's), and how far it stays elsewhere. Which methods rest on a structure they
+    identify and which measure the leg is what the methods are, not a result."""
+    degraded = {}
+    for method, plant, worst, _ in doc.get("degraded", []):
+        degraded.setdefault(method, []).append((plant, worst))
+    s_deg = [m for m in STRUCTURE if m in degraded]
+    m_deg = [m for m in MEASURES if m in degraded]
+    if s_deg and not m_deg:
+        head = ("The methods that identify a *structure* degrade where the leg has one they lack; the methods that "
+                "measure the leg do not:")
+    elif m_deg:
+        head = f"Methods that measure the leg degrade too here ({', '.join(m_deg)}):"
+    else:
+        head = "No method degrades on any plant of this table:"
+    out = [f"**Reading the table** (written from its numbers, payload {doc.get('payload', 0):g} kg). {head}", ""]
+    for method, intro in {**STRUCTURE, **MEASURES}.items():
+        cells = _cells(doc, method)
+        if not cells:
+            continue
+        base = cells.get("default")
+        parts = [f"{intro}: worst error {_worst(base)} on the default plant" if base else intro]
+        deg = degraded.get(method, [])
+        if deg:
+            parts.append("degrades on " + ", ".join(f"{p} ({_pct(w, sign=False)})" for p, w in deg))
+        rest = [(p, c) for p, c in cells.items() if p != "default" and p not in dict(deg)]
+        finite = [c["worst"] for _, c in rest if c["worst"] is not None and math.isfinite(c["worst"])]
+        if rest and finite:
+            parts.append(f"{'and stays' if deg else 'stays'} within {_pct(max(finite), sign=False)} on "
+                         + ", ".join(p for p, _ in rest))
+        line = "- " + "; ".join(parts) + "."
+        if method == "friction":
+            zero = [p for p, c in cells.items()
+                    if any(isinstance(v, (int, float)) and not isinstance(v, bool) and v <= -0.99
+                           for k, v in c.get("detail", {}).items() if k != "rms_deg")]
+            stopped = [f"on {p}: {c['note']}" for p, c in cells.items() if c.get("note")]
+            rms = {p: max(c.get("detail", {}).get("rms_deg") or [math.nan]) for p, c in cells.items()}
+            if zero:
+                line += f" A coefficient is fitted to (nearly) zero on {', '.join(zero)}."
+            if stopped:
+                line += " " + "; ".join(stopped).capitalize() + "."
+            if deg and all(math.isfinite(v) for v in rms.values()):
+                line += (" Its residual (largest joint, deg RMS): "
+                         + ", ".join(f"{p} {significant(v, 2)}" for p, v in rms.items())
+                         + ". Where it degrades, use its values as an effective description of that run, not as the "
+                           "bearings' physics.")
+        if method == "state feedback: playback" and base:
+            worst = [c["worst"] for c in cells.values() if c["worst"] is not None and math.isfinite(c["worst"])]
+            measured = [c["worst"] for m in MEASURES for c in _cells(doc, m).values()
+                        if c["worst"] is not None and math.isfinite(c["worst"])]
+            if worst and measured and min(worst) > max(measured):
+                line += (f" Open loop, it departs by {_pct(min(worst), sign=False)} to {_pct(max(worst), sign=False)} "
+                         f"on every plant, the default included: more than any method that measures the leg does on "
+                         f"any plant (at most {_pct(max(measured), sign=False)}); it is no way to reach a target.")
+        if method == "design":
+            steps = [d["experiments"] for c in cells.values() for d in c.get("detail", {}).values()
+                     if isinstance(d, dict) and "experiments" in d]
+            if steps:
+                line += f" It takes at most {max(steps)} steps per target."
+        out.append(line)
     return "\n".join(out)
 
 
@@ -264,8 +421,12 @@ def _leaves(obj):
 
 def quoted_numbers(text: str) -> list[tuple[str, bool]]:
     """The numbers ``text`` quotes, as (token, is_percent): not inside back-quotes (names),
-    not references (eq. 5.11, Listing 7.7, Fig. 6.9, notebook 05, A[3,3])."""
+    not references (eq. 5.11, Listing 7.7, Fig. 6.9, notebook 05, A[3,3]); the bounds of an
+    interval followed by "%" ("[-0.3, +2.7] %") are percents."""
     plain = re.sub(r"`[^`]*`", " ", text)
+    # an interval of percents, "+1.2 % [-0.3, +2.7] %" (units.percent_interval_text): its bounds are percents too
+    plain = re.sub(r"\[([^\[\]]*)\]\s*%", lambda m: "[ " + ", ".join(f"{b.strip()} %" for b in m.group(1).split(","))
+                   + "]", plain)
     out = []
     for match in _NUMBER.finditer(plain):
         before = plain[max(0, match.start() - 20):match.start()]

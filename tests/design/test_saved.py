@@ -231,5 +231,77 @@ def test_fifo_is_refused_without_blocking(tmp_path):
 
 def test_dynamics_text_keeps_the_digits_identification_supports():
     from leglib.design import saved
-    assert saved.dynamics_text((0.23933203135364942, 5.004081632653061)) == "zeta 0.239, fn 5.00 Hz"
+    # without an interval it says so, never a bare number
+    assert (saved.dynamics_text((0.23933203135364942, 5.004081632653061))
+            == "zeta 0.239, fn 5.00 Hz (no interval recorded)")
+    # with one, to the digits the interval supports (leglib.units.interval_text)
+    assert (saved.dynamics_text((0.23933203135364942, 5.004081632653061), ((0.161, 0.318), (4.47, 5.54)))
+            == "zeta 0.24 [0.16, 0.32], fn 5.0 [4.5, 5.5] Hz")
     assert saved.dynamics_text(None) == "none (not a second-order step)"
+
+
+def _with_intervals():
+    return GainDesign(target=(0.24, 5.0), gains=(50, 0.046, 0.001), method="map", predicted=(0.2391, 4.987),
+                      measured=(0.2424, 5.021), measured_intervals=((0.162, 0.323), (4.47, 5.57)),
+                      predicted_intervals=((0.2, 0.28), (4.6, math.inf)))
+
+
+def test_gain_design_keeps_the_measured_intervals_and_shows_them(tmp_path):
+    """The measured (zeta, fn) is stored with the 90 % intervals of the step that measured
+    it, read back exactly (an unbounded end as null in the file) and shown with them."""
+    g = _with_intervals()
+    path = designs.save(tmp_path / "g.json", g)
+    doc = json.loads(path.read_text())
+    assert doc["measured"]["zeta_interval"] == [0.162, 0.323] and doc["measured"]["fn_interval_hz"] == [4.47, 5.57]
+    assert doc["predicted"]["fn_interval_hz"] == [4.6, None]          # unbounded above: no inf in JSON
+    back = designs.load(path)
+    assert back == g and designs.same(back, g)
+    assert back.measured_intervals == ((0.162, 0.323), (4.47, 5.57)) and back.predicted_intervals[1][1] == math.inf
+    assert back.measured_text() == "zeta 0.24 [0.16, 0.32], fn 5.0 [4.5, 5.6] Hz"
+    assert "zeta 0.24 [0.16, 0.32], fn 5.0 [4.5, 5.6] Hz" in str(back) and "90 % intervals" in str(back)
+    assert "zeta 0.24 [0.16, 0.32]" in back._repr_markdown_()
+
+
+def test_an_old_design_file_without_intervals_loads_and_says_so(tmp_path):
+    """A file written before intervals were stored (its measured and predicted hold zeta and
+    fn only) still loads, and the design states "no interval recorded" rather than printing
+    a bare number as if it had none to give."""
+    g = _with_intervals()
+    path = designs.save(tmp_path / "old.json", g)
+    doc = json.loads(path.read_text())
+    for part in ("measured", "predicted"):
+        for k in ("zeta_interval", "fn_interval_hz"):
+            doc[part].pop(k)
+    path.write_text(json.dumps(doc))
+    old = designs.load(path, kind="cascade_gains")
+    assert old.measured == g.measured and old.predicted == g.predicted
+    assert old.measured_intervals is None and old.predicted_intervals is None
+    assert old.measured_text() == "zeta 0.242, fn 5.02 Hz (no interval recorded)"
+    assert "no interval recorded" in old.predicted_text() and "no interval recorded" in str(old)
+    assert "no interval recorded" in old._repr_markdown_()
+    # and a design without any measurement stays as it was
+    bare = GainDesign(target=(0.5, 3), gains=(20, 0.1, 0.0), method="model")
+    assert designs.load(designs.save(tmp_path / "bare.json", bare)).measured_intervals is None
+
+
+@pytest.mark.parametrize("edit, field", [
+    (lambda d: d["measured"].pop("fn_interval_hz"), "'measured.fn_interval_hz' is missing"),
+    (lambda d: d["measured"].__setitem__("zeta_interval", [0.3, 0.4]),
+     "'measured.zeta_interval' \\[0.3, 0.4\\] does not hold the value 0.2424"),
+    (lambda d: d["measured"].__setitem__("zeta_interval", 0.2), "'measured.zeta_interval' must be \\[low, high\\]"),
+    (lambda d: d["measured"].__setitem__("fn_interval_hz", ["4", 5.6]), "'measured.fn_interval_hz\\[0\\]' must be"),
+])
+def test_malformed_intervals_name_the_field(tmp_path, edit, field):
+    path = _edit(designs.save(tmp_path / "g.json", _with_intervals()), edit)
+    with pytest.raises(DesignFileError, match=field):
+        designs.load(path)
+
+
+def test_intervals_must_hold_their_values():
+    with pytest.raises(ValueError, match="does not hold its value"):
+        GainDesign(target=(0.24, 5.0), gains=(50, 0.046, 0.001), method="map", measured=(0.24, 5.0),
+                   measured_intervals=((0.3, 0.4), (4.5, 5.5)))
+    # an identification without an interval (NaN bounds) records none
+    g = GainDesign(target=(0.24, 5.0), gains=(50, 0.046, 0.001), method="map", measured=(0.24, 5.0),
+                   measured_intervals=((math.nan, math.nan), (4.5, 5.5)))
+    assert g.measured_intervals is None and "no interval recorded" in g.measured_text()

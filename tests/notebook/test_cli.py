@@ -166,6 +166,14 @@ def test_design_on_the_twin_reports_the_rehearsal_and_saves(tmp_path, capsys):
                              "2 axes calibrated") for ln in lines)
     d = saved.load(path, kind="cascade_gains")
     assert d.method == "tune" and d.target == (0.24, 5.0) and f"wrote {path}" in out
+    # the final check's (zeta, fn) is stored with its 90 % intervals and printed with them
+    if d.measured is not None:
+        (zl, zh), (fl, fh) = d.measured_intervals
+        assert zl <= d.measured[0] <= zh and fl <= d.measured[1] <= fh
+        assert f"wrote {path}: {d}" in out and d.measured_text() in out and "no interval" not in d.measured_text()
+    # every experiment's line and table row says its intervals
+    steps = [ln for ln in lines if ln.startswith("  experiment ")]
+    assert steps and all(ln.endswith(("(90 % intervals)", "-> failed", "-> unstable")) for ln in steps), steps
 
 
 @pytest.fixture

@@ -30,6 +30,10 @@ def test_every_quoted_number_must_be_a_metric():
     assert findings.unquoted("361 points", m) == ["361"]
     assert findings.unquoted("an error of 9.0 %", m) == ["9.0%"]
     assert findings.unquoted("tiny 0.05 and 5e-02", m) == []
+    # an interval of percents: its bounds are percents of the metrics (units.percent_interval_text)
+    pm = {"e": 0.0123, "e_interval": [-0.0031, 0.0272]}
+    assert findings.unquoted("+1.23 % [−0.31, +2.72] %", pm) == []
+    assert findings.unquoted("+1.23 % [−0.35, +2.72] %", pm) == ["-0.35%"]
 
 
 def test_01_claims_eq_5_11_only_for_the_thesis_leg():
@@ -46,10 +50,17 @@ def test_01_claims_eq_5_11_only_for_the_thesis_leg():
 
 
 def _m05(max_zeta=0.0459):
-    return {"thesis_measure": {"reached": False, "error_zeta": -0.89, "target": {"zeta": 0.24, "f_hz": 5.0},
-                               "listing_reach": {"points": 95, "max_thesis_zeta": max_zeta, "min_true_zeta": 0.206,
+    return {"thesis_measure": {"reached": False, "error_zeta": -0.8875, "error_zeta_interval": [-0.8880, -0.8870],
+                               "error_f": -0.02, "error_f_interval": [-0.05, 0.01], "tolerance": 0.1,
+                               "verdict": "not reached: the errors' 90 % intervals of zeta [-88.8%, -88.7%] reach "
+                                          "beyond +-10%",
+                               "target": {"zeta": 0.24, "f_hz": 5.0},
+                               "listing_reach": {"points": 95, "max_thesis_zeta": max_zeta,
+                                                 "max_thesis_zeta_interval": [max_zeta - 1e-4, max_zeta + 1e-4],
+                                                 "max_thesis_zeta_upper": max_zeta + 1.2e-4, "min_true_zeta": 0.206,
                                                  "thesis_result_zeta": 0.229, "max_first_peak_deg": 60.9}},
-            "thesis_reading": {"zeta": 0.027, "f_hz": 4.9},
+            "thesis_reading": {"zeta": 0.0270, "f_hz": 4.9, "usable": True, "problem": None,
+                               "zeta_interval": [0.0269, 0.0271], "f_interval": [4.8, 5.0]},
             "thesis_target": {"target": [0.24, 5.0], "inside_region": True, "zeta": 0.2424, "fn": 5.021, "zeta_interval": [0.162, 0.323],
                               "fn_interval": [4.47, 5.57], "error_zeta": 0.01, "error_fn": 0.004,
                               "verdict": "the 90 % intervals hold zeta to +-33.1% of the target, more than the "
@@ -64,12 +75,23 @@ def test_05_leads_with_the_thesis_measure_result_and_quotes_intervals():
     m = _m05()
     text = findings.render("05_validation", m)
     first = text.splitlines()[0]
-    assert "does not reproduce the thesis" in first and "0.046" in first and "0.229" in first
+    assert "does not reproduce the thesis" in first and "0.229" in first
+    # Listing 7.7's largest reading and the step's reading with their 90 % intervals
+    assert ("zeta 0.04590 [0.04580, 0.04600] (90 % interval; no usable reading's interval reaches above 0.0460)"
+            in first)
+    assert "reads zeta 0.02700 [0.02690, 0.02710] at 4.90 [4.80, 5.00] Hz" in first
+    assert "−88.75 % [−88.80, −88.70] %" in first
     # zeta to the digits its interval supports (half-width 0.08: two decimals), not 0.242 [0.162, 0.323]
     assert "zeta 0.24 [0.16, 0.32], fn 5.0 [4.5, 5.6] Hz" in text and "interval" in text
     assert findings.unquoted(text, m) == []
     m["thesis_measure"]["reached"] = True
     assert "reaches the thesis's target" in findings.render("05_validation", m).splitlines()[0]
+    # a step the listing fails on: no number quoted for it, its reason instead
+    m["thesis_reading"].update(usable=False, problem="its second 'peak' is ripple of the settled tail")
+    m["thesis_measure"]["reached"] = False
+    first = findings.render("05_validation", m).splitlines()[0]
+    assert "gives no reading of the step at the gains nearest the target: its second 'peak' is ripple" in first
+    assert "0.0270" not in first and findings.unquoted(first, m) == []
 
 
 def test_render_reads_a_metrics_file_and_refuses_unknown_notebooks(tmp_path):
@@ -81,3 +103,86 @@ def test_render_reads_a_metrics_file_and_refuses_unknown_notebooks(tmp_path):
     with pytest.raises(FileNotFoundError, match="no metrics file"):
         findings.read_metrics(tmp_path / "none.json")
     assert not math.isnan(findings.read_metrics(p)["eq511_max_rel_error"])
+
+
+def _m02_reading(**kw):
+    base = {"zeta": 0.02522, "f_hz": 6.41, "n_peaks": 99, "usable": True,
+            "problem": "findpeaks finds 99 peaks where an oscillation at the reading's own 6.41 Hz has at most 10",
+            "zeta_interval": [0.02514, 0.02530], "f_interval": [6.10, 6.67], "interval_reason": None}
+    return {**base, **kw}
+
+
+@pytest.mark.parametrize("reading, says, quotes", [
+    (_m02_reading(), "**the listing fails here**: findpeaks finds 99 peaks", "zeta 0.02522 [0.02514, 0.02530] at 6.41 [6.10, 6.67] Hz"),
+    (_m02_reading(problem=None), "its own, biased measure", "zeta 0.02522 [0.02514, 0.02530]"),
+    (_m02_reading(usable=False, problem="fewer than two peaks (1): the listing returns its constant zeta = 1, no reading",
+                  zeta=1.0, zeta_interval=[math.nan, math.nan], f_interval=[math.nan, math.nan]),
+     "Listing 7.7 gives no reading of the same step: **the listing fails here**: fewer than two peaks", None),
+])
+def test_02_quotes_listing_7_7_with_its_intervals_or_no_reading(reading, says, quotes):
+    """The Listing 7.7 line of notebook 02: a reading with its 90 % intervals (and, where
+    findpeaks counts the tail, that the listing fails there), or no number at all when it
+    fails outright."""
+    line = findings.friction({"rms_deg": [0.016], "rms_before_deg": [8.3], "preferred_model": "coulomb_viscous",
+                              "friction": {"not_identifiable": {"viscous1": "on its bound", "viscous2": "on its bound",
+                                                                "coulomb1": "on its bound", "coulomb2": "on its bound"},
+                                           "params": {}, "intervals": {}},
+                              "recovery_rel_error": {}, "single_joint": None,
+                              "step_fit": {"zeta": 0.371, "fn": 6.98, "zeta_interval": [0.364, 0.378],
+                                           "fn_interval": [6.90, 7.05], "r2": 0.999},
+                              "step_thesis_reading": reading}).splitlines()[-1]
+    assert says in line
+    if quotes:
+        assert quotes in line and "90 % intervals" in line
+    else:
+        assert "1.000" not in line and "zeta 1" not in line
+
+
+def _robustness_doc():
+    def cell(median, worst, experiments=1, detail=None, note=""):
+        return {"median": median, "worst": worst, "experiments": experiments, "detail": detail or {}, "note": note,
+                "seconds": 1.0}
+    fr = {"default": cell(0.001, 0.007, detail={"viscous1": -0.007, "rms_deg": [0.017, 0.016]}),
+          "belt": cell(0.068, 0.203, detail={"viscous1": -0.203, "rms_deg": [0.094, 0.086]}),
+          "lugre": cell(0.058, 0.996, detail={"viscous1": -0.996, "rms_deg": [0.48, 0.2]},
+                        note="fit stopped at 200 evaluations")}
+    scores = {p: {"friction": fr[p],
+                  "state feedback: playback": cell(0.11, {"default": 0.113, "belt": 0.109, "lugre": 0.143}[p]),
+                  "second order": cell(0.003, {"default": 0.009, "belt": 0.021, "lugre": 0.012}[p], 5),
+                  "design": cell(0.008, 0.02, 16, {"target 1": {"experiments": 2}, "target 2": {"experiments": 4}})}
+              for p in ("belt", "default", "lugre")}
+    degraded = [["friction", "belt", 0.203, 0.007], ["friction", "lugre", 0.996, 0.007]]
+    return {"commit": "abc1234", "date": "2026-12-01T10:50:36+00:00", "payload": 0.0, "scores": scores,
+            "degraded": degraded}
+
+
+def test_reading_the_robustness_table_is_written_from_its_numbers():
+    """Notebook 05's "Reading the table": which methods degrade and by how much, from the
+    table's numbers and its own rule (its ``degraded`` list); a claim the numbers do not
+    carry is not made."""
+    doc = _robustness_doc()
+    text = findings.robustness(doc)
+    assert findings.unquoted(text, doc) == [], findings.unquoted(text, doc)
+    assert "The methods that identify a *structure* degrade where the leg has one they lack" in text
+    fr = next(ln for ln in text.splitlines() if ln.startswith("- **Friction"))
+    assert "degrades on belt (20.3 %), lugre (99.6 %)" in fr and "zero on lugre" in fr
+    assert "On lugre: fit stopped at 200 evaluations." in fr
+    pb = next(ln for ln in text.splitlines() if "played-back" in ln)
+    assert "departs by 10.9 % to 14.3 % on every plant" in pb and "at most 2.1 %" in pb
+    assert "at most 4 steps per target" in text
+    # a measuring method that degrades is said to, and the structure/measure claim is not made
+    doc["degraded"].append(["second order", "belt", 0.21, 0.009])
+    other = findings.robustness(doc)
+    assert "Methods that measure the leg degrade too here (second order)" in other
+    assert "the methods that measure the leg do not" not in other
+
+
+def test_03_playback_says_what_its_runs_show():
+    m = {"model": {"rise_time": 0.21, "overshoot_pct": 2.5, "final_error_pct": 1.25},
+         "playback": {"rise_time": 0.15, "overshoot_pct": 9.75, "final_error_pct": 7.5},
+         "viscous": 0.098, "k22_listing": 0.2133, "k22_exact": 0.1780, "step_deg": 20.0}
+    text = findings.thesis_playback(m)
+    assert text.startswith("As in the thesis, the leg played back rises in 0.150 s against the model's 0.210 s")
+    assert "20 % above the exact five-bar's 0.178" in text and findings.unquoted(text, m) == []
+    m["playback"]["rise_time"] = 0.3
+    assert findings.thesis_playback(m).startswith("Unlike the thesis")

@@ -14,6 +14,7 @@ from leglib.design import statefeedback as SF
 from leglib.notebook import findings, offline, widgets
 from leglib.notebook import run as notebooks
 from leglib.notebook.run import count_figures, execute, notebook_paths
+from leglib.units import interval_text
 
 NOTEBOOKS = notebook_paths()
 
@@ -209,6 +210,21 @@ def test_02_friction_fitting(processed):
     text = _check_findings(tmp_path / "02_friction_fitting.ipynb", "02_friction_fitting", m)
     if th["problem"]:
         assert "the listing fails here" in text
+    # the corrected log decrement with its intervals (or the fit's, where it falls back to it)
+    ld = m["step_logdec"]
+    assert "note" in ld or (_inside(ld["zeta"], ld["zeta_interval"]) and _inside(ld["fn"], ld["fn_interval"]))
+    # its reading with its 90 % intervals, or none (no reading, its reason)
+    if th["usable"]:
+        assert _inside(th["zeta"], th["zeta_interval"]) and _inside(th["f_hz"], th["f_interval"])
+        assert th["interval_reason"] is None
+    else:
+        assert all(math.isnan(x) for x in th["zeta_interval"]) and th["interval_reason"].startswith("no reading")
+
+
+def _shown_markdown(executed) -> str:
+    return "".join(o.get("data", {}).get("text/markdown", "") + "".join(o.get("text", ""))
+                   for c in nbformat.read(str(executed), as_version=4).cells if c.cell_type == "code"
+                   for o in c.get("outputs", []))
 
 
 @pytest.mark.notebook
@@ -232,6 +248,10 @@ def test_03_pole_placement(processed, tmp_path):
     assert m["readout"].startswith("K = [")
     _check_rehearsal(m)
     assert m["bench"]["counts"]["torque"] == 4 and m["bench"]["counts"]["hold"] == 2
+    # the playback against the model is written from the runs' numbers, not by hand
+    text = findings.thesis_playback(m["thesis_playback"])
+    assert findings.unquoted(text, m) == [] and text in _shown_markdown(tmp_path / NOTEBOOKS[2].name)
+    assert m["thesis_playback"]["playback"] == runs["thesis design: playback"]
 
 
 def _run_notebook_04(out):
@@ -251,6 +271,10 @@ def test_04_pid_sweeps(sweep04):
     _check_animations(out / NOTEBOOKS[3].name, 1)
     g = designs.load(out / "processed" / "design_04_thesis_target.json", kind="cascade_gains")
     assert g.method == "map" and g.target == (0.24, 5.0) and g.measured is not None
+    # saved with the measuring step's 90 % intervals and the map's for its prediction
+    assert g.measured_intervals == (tuple(m["thesis_target_measured"]["zeta_interval"]),
+                                    tuple(m["thesis_target_measured"]["fn_interval"]))
+    assert g.predicted_intervals is not None and g.measured_text() in _shown_markdown(out / NOTEBOOKS[3].name)
     assert g.source["sweep_dir"] == str(out / "sweep") and sum(g.source["counts"].values()) == 32
     assert m["points"] == 32 and sum(m["counts"].values()) == 32
     under, over = m["bldc"]["(100.0, 0.1, 10.0)"], m["bldc"]["(8.0, 5.0, 0.3)"]
@@ -268,17 +292,37 @@ def test_04_pid_sweeps(sweep04):
     assert m["bench"]["counts"]["sweep"] == 1 and m["bench"]["counts"]["step"] == 32 + 2
     t = m["thesis_target_nearest"]
     assert _inside(t["zeta"], t["zeta_interval"]) and _inside(t["fn"], t["fn_interval"])
-    assert m["listing_reach"]["max_thesis_zeta"] < m["listing_reach"]["thesis_result_zeta"]
-    _check_findings(out / NOTEBOOKS[3].name, NOTEBOOKS[3].stem, m)
+    reach = m["listing_reach"]
+    assert reach["max_thesis_zeta"] < reach["thesis_result_zeta"]
+    # Listing 7.7's largest reading with its 90 % interval, in the text too
+    if reach["points"]:
+        assert _inside(reach["max_thesis_zeta"], reach["max_thesis_zeta_interval"])
+        assert reach["max_thesis_zeta_upper"] >= reach["max_thesis_zeta_interval"][1]
+    text = _check_findings(out / NOTEBOOKS[3].name, NOTEBOOKS[3].stem, m)
+    if reach["points"]:
+        assert "(90 % interval; no usable reading's interval reaches above" in text
 
 
 @pytest.mark.notebook
 def test_05_validation(sweep04, tmp_path):
+    """Notebook 05 started from 04's saved design, written as a file of before intervals were
+    stored (its measured and predicted values only): it loads, says "no interval recorded",
+    and 05 saves its own design with the intervals of the step it measured."""
     out04, _ = sweep04
-    m = _run(NOTEBOOKS[4], tmp_path, sweep_dir=str(out04 / "sweep"), processed_dir=str(tmp_path / "processed"))
+    old = json.loads((out04 / "processed" / "design_04_thesis_target.json").read_text())
+    for part in ("measured", "predicted"):
+        for k in ("zeta_interval", "fn_interval_hz"):
+            old[part].pop(k, None)
+    (tmp_path / "old_design.json").write_text(json.dumps(old))
+    m = _run(NOTEBOOKS[4], tmp_path, sweep_dir=str(out04 / "sweep"), processed_dir=str(tmp_path / "processed"),
+             design_file=str(tmp_path / "old_design.json"))
+    shown = _shown_markdown(tmp_path / NOTEBOOKS[4].name)
+    assert "no interval recorded" in shown
     g = designs.load(tmp_path / "processed" / "design_05_thesis_target.json")
     assert g.gains == tuple(m["thesis_target"]["gains"]) and g.measured == (m["thesis_target"]["zeta"],
                                                                             m["thesis_target"]["fn"])
+    assert g.measured_intervals == (tuple(m["thesis_target"]["zeta_interval"]), tuple(m["thesis_target"]["fn_interval"]))
+    assert g.predicted_intervals is None and "no interval recorded" in g.predicted_text()   # none in the file it read
     assert len(m["targets"]) == 5
     # the smoke map is a 2 x 4 x 4 grid: coarse; the model needs no grid
     assert m["summary"]["map"]["worst"] < 0.5
@@ -290,7 +334,13 @@ def test_05_validation(sweep04, tmp_path):
     assert 0 < tr["zeta"] < 1 and tr["fd"] < tr["fn"]
     tm = m["thesis_measure"]
     errors_small = abs(tm["error_zeta"]) <= 0.1 and abs(tm["error_f"]) <= 0.1
-    assert tm["reached"] == errors_small
+    assert not tm["reached"] or errors_small           # reached only when the intervals lie within it
+    # Listing 7.7's readings with their 90 % intervals, or why none
+    if th["usable"]:
+        assert _inside(th["zeta"], th["zeta_interval"]) and _inside(th["f_hz"], th["f_interval"])
+        assert _inside(tm["error_zeta"], tm["error_zeta_interval"])
+    else:
+        assert th["interval_reason"].startswith("no reading")
     if not tm["reached"]:
         # the notebook shows where the target lies: the twin's best Listing 7.7 reading
         assert 0 <= tm["max_thesis_zeta"] < 1
@@ -309,8 +359,14 @@ def test_05_validation(sweep04, tmp_path):
     reach = m["thesis_measure"]["listing_reach"]
     first = text.splitlines()[0]
     assert "thesis's own measure" in first and f"{reach['thesis_result_zeta']:.3f}" in first
-    if not tm["reached"]:
-        assert f"{reach['max_thesis_zeta']:.3f}" in first
+    if not tm["reached"] and reach["points"]:
+        assert interval_text(reach["max_thesis_zeta"], reach["max_thesis_zeta_interval"]) in first
+    # "Reading the table": written from the robustness table's numbers, when there is one
+    if m["robustness"] is not None:
+        reading = findings.robustness(m["robustness"])
+        assert findings.unquoted(reading, m["robustness"]) == [] and reading in shown
+    else:
+        assert "No robustness table" in shown
 
 
 @pytest.mark.notebook
