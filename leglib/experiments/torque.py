@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -120,6 +121,43 @@ class TorqueRun:
 TORQUE_SUFFIX = "_torque.csv"   # a torque run's table, beside its positions file
 
 
+def _fall_headroom(dev, quiet: bool = False) -> None:
+    """Raise both axes' ``vel_limit`` to the configuration's ``step_vel_limit`` for the fall
+    that follows a torque run. On firmware 0.5.5+ the controller updates every tick in every
+    state (main.cpp:438-446), so its overspeed check (controller.cpp:331-341) also judges
+    the leg falling back while IDLE, against the run's vel_limit x vel_limit_tolerance
+    (2.0 x 1.2 turn/s): a trip there blocks the next closed loop. With the torques at zero
+    the limit has no other use until the next experiment sets its own (measured on the twin:
+    falls after the friction experiment peak at 1.04 turn/s, after notebook 03's playback at
+    1.42 turn/s; after a step at 3.9 turn/s). ``quiet``: after an abort, never raise."""
+    for a in (0, 1):
+        try:
+            dev.set(a, "vel_limit", dev.config.step_vel_limit)
+        except Exception as exc:  # noqa: BLE001 - quiet: the abort's own exception is the one to see
+            if not quiet:
+                raise
+            warnings.warn(f"axis{a}.controller.config.vel_limit could not be raised for the fall after the "
+                          f"aborted run ({type(exc).__name__}: {exc}): an OVERSPEED may be flagged while IDLE",
+                          stacklevel=3)
+            return
+
+
+@contextmanager
+def _released_with_headroom(dev):
+    """:func:`safe` for a torque run, and :func:`_fall_headroom` for the fall after it:
+    before the axes go IDLE when the run ends normally (its torques are zero then), right
+    after they went IDLE when it was aborted (the abort's IDLE comes first)."""
+    ended = False
+    try:
+        with safe(dev):
+            yield
+            _fall_headroom(dev)
+            ended = True
+    finally:
+        if not ended:
+            _fall_headroom(dev, quiet=True)
+
+
 def torque_loop(odrv, policy, duration: float, period: float | None = None,
                 max_joint_speed: float = 20.0, meta: dict | None = None,
                 record_current: bool = True, check_every: int = 1, on_sample=None) -> TorqueRun:
@@ -182,7 +220,7 @@ def torque_loop(odrv, policy, duration: float, period: float | None = None,
     a_q1, a_q2 = ax.axis_of_joint
     limit = dev.config.current_lim * dev.config.torque_constant
     ts, t_cmd, t_read, c1, c2, iq, applied = [], [], [], [], [], [], []
-    with bench.timed(dev, "torque"), safe(dev):
+    with bench.timed(dev, "torque"), _released_with_headroom(dev):
         prepare_closed_loop(dev, dev.config.vel_limit, watchdog=0.2)
         for a in (0, 1):
             dev.set(a, "input_torque", 0.0)

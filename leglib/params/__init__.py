@@ -430,6 +430,8 @@ class MotorParams:
     kv: float = _p("motor", "rad/s/V")
     torque_constant: float = _p("motor", "N*m/A")
     phase_resistance: float = _p("motor", "ohm")
+    phase_inductance: float = _p("motor", "H", bounds=(1e-6, 1e-2, "a BLDC phase of 1 uH .. 10 mH; the ODrive's "
+                                                        "calibration refuses beyond 2 uH .. 4 mH (motor.cpp:481)"))
     pole_pairs: int = _p("motor", "-", "count")
     max_continuous_current: float = _p("motor", "A")
     idle_current: float = _p("motor", "A")

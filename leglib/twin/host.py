@@ -32,29 +32,62 @@ from .kernel import _run, _run_serial
 from .layout import (
     BELT_PHASE_PER_STEP,
     C_ABORT_ERROR,
+    C_BEMF_FF,
     C_BRAKE_ON,
     C_BRAKE_R,
     C_CAL_CURRENT,
+    C_CIRC_RANGE,
+    C_CIRCULAR,
+    C_CONTROL_MODE,
+    C_CPR,
     C_CURRENT_BW,
     C_CURRENT_LIM,
+    C_CURRENT_LIM_MARGIN,
     C_DC_MAX_NEG,
     C_DC_MAX_POS,
+    C_ELEC_BW,
+    C_EN_GAIN_SCHED,
+    C_EN_OVERSPEED,
+    C_EN_TQ_VEL_LIMIT,
+    C_EN_VEL_LIMIT,
     C_ENCODER_BW,
     C_FILTER_BW,
+    C_FW_056,
+    C_GAIN_SCHED_WIDTH,
+    C_IBUS_MAX,
+    C_IBUS_MIN,
+    C_INERTIA,
     C_INPUT_MODE,
     C_INPUT_POS,
     C_INPUT_TORQUE,
     C_INPUT_VEL,
     C_INT_RESET_TORQUE,
     C_KT,
+    C_MAX_CURRENT,
     C_MAX_REGEN,
+    C_MECH_BW,
+    C_MIRROR_AXIS,
+    C_MIRROR_RATIO,
+    C_PHASE_L,
+    C_PHASE_R,
     C_POS_GAIN,
+    C_RWL_FF,
+    C_SPIN_ELEC,
+    C_SPIN_MECH,
+    C_TORQUE_LIM,
+    C_TORQUE_MIRROR_RATIO,
+    C_TORQUE_RAMP_RATE,
+    C_TUNE_FREQ,
+    C_TUNE_TQ_AMP,
     C_VBUS,
     C_VEL_GAIN,
     C_VEL_INT_GAIN,
     C_VEL_INT_LIMIT,
     C_VEL_LIMIT,
+    C_VEL_RAMP_RATE,
     C_VEL_TOL,
+    CURRENT_LIM_MARGIN,
+    DRV_GAINS,
     F_ASYM,
     F_BACKLASH_HALF,
     F_BELT_C,
@@ -78,8 +111,10 @@ from .layout import (
     F_LUGRE_S0,
     F_LUGRE_S1,
     I_AXIS_ERR,
+    I_CONNECTED,
     I_MODE,
     INPUT_MODE_PASSTHROUGH,
+    MAX_UNITY_GAIN_CURRENT,
     MODE_POSITION,
     N_AXINT,
     N_AXSTATE,
@@ -87,9 +122,15 @@ from .layout import (
     N_FR,
     N_OSC,
     N_X,
+    S_ELEC_P,
+    S_FOC_POWER,
     S_INTEGRATOR,
+    S_IQ,
+    S_MECH_P,
     S_OSC,
     S_POS_EST,
+    S_V_INT,
+    S_V_PREV,
     VECTOR_LEGS,
     X_DPHI1,
     X_DPHI2,
@@ -160,6 +201,50 @@ def effect_parameters(plant: PlantParams, leg: LegParams, dt: float) -> np.ndarr
     return out
 
 
+def controller_defaults(C: np.ndarray, cpr: float) -> None:
+    """The firmware's defaults of the controller's and motor's further settings
+    (controller.hpp:25-56, motor.hpp:28-30; ``C[..., k]`` of both axes) and the configured
+    cpr (encoder.config.cpr)."""
+    C[..., C_CONTROL_MODE] = MODE_POSITION
+    C[..., C_EN_VEL_LIMIT] = 1.0
+    C[..., C_EN_TQ_VEL_LIMIT] = 1.0
+    C[..., C_EN_OVERSPEED] = 1.0
+    C[..., C_EN_GAIN_SCHED] = 0.0
+    C[..., C_GAIN_SCHED_WIDTH] = 10.0
+    C[..., C_VEL_RAMP_RATE] = 1.0
+    C[..., C_TORQUE_RAMP_RATE] = 0.01
+    C[..., C_CIRCULAR] = 0.0
+    C[..., C_CIRC_RANGE] = 1.0
+    C[..., C_INERTIA] = 0.0
+    C[..., C_MIRROR_AXIS] = 255.0                   # uint8 -1
+    C[..., C_MIRROR_RATIO] = 1.0
+    C[..., C_TORQUE_MIRROR_RATIO] = 0.0
+    C[..., C_TUNE_FREQ:C_TUNE_TQ_AMP + 1] = 0.0
+    C[..., C_TORQUE_LIM] = np.inf
+    C[..., C_CURRENT_LIM_MARGIN] = CURRENT_LIM_MARGIN
+    C[..., C_MAX_CURRENT] = max_measurable_current(60.0)
+    C[..., C_CPR] = float(cpr)
+    C[..., C_BEMF_FF] = 0.0                         # motor.hpp:43-47
+    C[..., C_RWL_FF] = 0.0
+    C[..., C_IBUS_MIN] = -np.inf
+    C[..., C_IBUS_MAX] = np.inf
+    C[..., C_MECH_BW] = 20.0                        # controller.hpp:52-55
+    C[..., C_ELEC_BW] = 20.0
+    C[..., C_SPIN_MECH] = -10.0
+    C[..., C_SPIN_ELEC] = 10.0
+
+
+def max_measurable_current(requested_current_range: float) -> float:
+    """motor.cpp:312-330 with drv8301.cpp:21-36: the largest current the shunt amplifier
+    measures when ``requested_current_range`` [A] is asked for: the largest DRV8301 gain not
+    above the requested one (else the smallest), max_unity_gain_current / gain [A]."""
+    requested_gain = MAX_UNITY_GAIN_CURRENT / requested_current_range if requested_current_range != 0 else math.inf
+    setting = len(DRV_GAINS) - 1
+    while setting and DRV_GAINS[setting] > requested_gain:
+        setting -= 1
+    return MAX_UNITY_GAIN_CURRENT / DRV_GAINS[setting]
+
+
 @dataclass
 class TwinState:
     """Everything the kernel mutates, for a batch of B legs (arrays, see :func:`_run`)."""
@@ -224,7 +309,7 @@ class Twin:
         self.DRV = np.array([ax.gear_ratio, ax.cpr, ax.direction, ax.q_rest[0], ax.q_rest[1],
                              ax.joint_of_axis(0), p.encoder_noise if noise else 0.0,
                              p.current_noise if noise else 0.0, motor.torque_constant, 1.0 if quantize else 0.0,
-                             float(motor.pole_pairs), motor.phase_resistance])
+                             float(motor.pole_pairs), motor.phase_resistance, motor.phase_inductance])
         self.state = self._initial_state(batch)
 
     def mount_payload(self, mounted: bool) -> None:
@@ -258,6 +343,11 @@ class Twin:
         C[:, :, C_FILTER_BW] = 2.0                  # firmware default input_filter_bandwidth
         C[:, :, C_INT_RESET_TORQUE] = 1.0
         C[:, :, C_CAL_CURRENT] = 10.0               # firmware default calibration_current
+        controller_defaults(C, cpr=cfg.cpr)
+        # the current controller's R and L as a motor calibration measures them (motor.cpp:
+        # 416-509): the motor's own
+        C[:, :, C_PHASE_R] = self.motor.phase_resistance
+        C[:, :, C_PHASE_L] = self.motor.phase_inductance
         # the board as leglib configures it: brake resistor on, the firmware's bus limits
         C[:, 0, C_BRAKE_ON] = 1.0
         C[:, 0, C_BRAKE_R] = cfg.brake_resistance
@@ -265,6 +355,7 @@ class Twin:
         C[:, 0, C_DC_MAX_POS] = np.inf
         C[:, 0, C_DC_MAX_NEG] = -0.01
         C[:, 0, C_VBUS] = 24.0
+        C[:, 0, C_FW_056] = 1.0                     # the firmware the batch follows: 0.5.6
         st = TwinState(X=X, AS=np.zeros((batch, 2, N_AXSTATE)), AI=np.zeros((batch, 2, N_AXINT), np.int64),
                        C=C, RNG=seeds_for(self.seed, [(i,) for i in range(batch)]),
                        ABORT=np.zeros((batch, 2), np.int64))
@@ -379,7 +470,12 @@ class Twin:
             st.C[:, a, C_INPUT_POS] = st.AS[:, a, S_POS_EST] + sign * step_turns
             st.C[:, a, C_ABORT_ERROR] = abort
             st.C[:, a, C_INPUT_MODE] = INPUT_MODE_PASSTHROUGH
+            st.C[:, a, C_CONTROL_MODE] = MODE_POSITION
             st.AI[:, a, I_MODE] = MODE_POSITION
+            st.AI[:, a, I_CONNECTED] = 1        # closed loop connects the estimates (axis.cpp:270-285)
+            # the controller's and the current controller's reset at arming (controller.cpp:12-19,
+            # foc.cpp:47-53)
+            st.AS[:, a, [S_V_PREV, S_V_INT, S_IQ, S_MECH_P, S_ELEC_P, S_FOC_POWER]] = 0.0
             st.AS[:, a, S_INTEGRATOR] = 0.0
             st.AS[:, a, S_OSC:S_OSC + N_OSC] = 0.0
         every = max(1, int(round(sample_period / self.dt)))

@@ -1,11 +1,13 @@
 """The twin's kernel: a batch of legs advanced tick by tick at the ODrive's 8 kHz.
 
 Per tick and axis it does what firmware 0.5.x does: the board's checks, the encoder read
-(quantized at the configured CPR, with noise) and its PLL, the cascade (position P ->
-velocity PI with the velocity limit and the integrator's anti-windup, the input modes),
-the current loop (first order at the current-control bandwidth, current limit, torque
-constant) and its fault checks, then the DC bus with the brake resistor, then the leg's
-mechanics (:mod:`leglib.twin.mechanics`). :func:`_run` shares the batch out in blocks over
+(quantized at the encoder's resolution, with noise) and its PLL (in turns of the
+configured cpr), the controller (controller.cpp:143-450: the input modes, the setpoint
+clamps, position P -> velocity PI with the velocity limit, the overspeed check and the
+integrator's anti-windup; every tick in every state on 0.5.6, in closed loop on 0.5.1),
+the current loop (the firmware's PI with its voltage limit on the motor's R, L and
+back-EMF, half a period late) and its fault checks, then the DC bus with the brake
+resistor, then the leg's mechanics (:mod:`leglib.twin.mechanics`). :func:`_run` shares the batch out in blocks over
 the cores; a block the vectorized path allows goes to :mod:`leglib.twin.vector`, every
 other one to :func:`_run_block`, the reference.
 """
@@ -24,6 +26,7 @@ from ..abort import (
     ABORT_POSITION_ERROR,
     _oscillation_step,
 )
+from ..kernelmath import py_min
 from .effects import _encoder_error
 from .layout import (
     AXIS_ERROR_CONTROLLER_FAILED,
@@ -32,28 +35,55 @@ from .layout import (
     AXIS_ERROR_MOTOR_FAILED,
     AXIS_ERROR_WATCHDOG_TIMER_EXPIRED,
     C_ABORT_ERROR,
+    C_BEMF_FF,
     C_BRAKE_ON,
     C_BRAKE_R,
     C_CAL_CURRENT,
     C_CAL_RAMP,
     C_CAL_VEL,
+    C_CIRC_RANGE,
+    C_CIRCULAR,
+    C_CONTROL_MODE,
     C_COUNT_OFFSET,
+    C_CPR,
     C_CURRENT_BW,
     C_CURRENT_LIM,
+    C_CURRENT_LIM_MARGIN,
     C_DC_MAX_NEG,
     C_DC_MAX_POS,
+    C_ELEC_BW,
+    C_EN_GAIN_SCHED,
+    C_EN_OVERSPEED,
+    C_EN_TQ_VEL_LIMIT,
+    C_EN_VEL_LIMIT,
     C_ENCODER_BW,
     C_FILTER_BW,
+    C_FW_056,
+    C_GAIN_SCHED_WIDTH,
+    C_IBUS_MAX,
+    C_IBUS_MIN,
+    C_INERTIA,
     C_INPUT_MODE,
     C_INPUT_POS,
     C_INPUT_TORQUE,
     C_INPUT_VEL,
-    C_INT_RESET_TORQUE,
     C_KT,
+    C_MAX_CURRENT,
     C_MAX_REGEN,
+    C_MECH_BW,
+    C_MIRROR_AXIS,
+    C_MIRROR_RATIO,
     C_OV_TRIP,
+    C_PHASE_L,
+    C_PHASE_R,
     C_POS_GAIN,
     C_REGEN_ERR_STYLE,
+    C_RWL_FF,
+    C_SPIN_ELEC,
+    C_SPIN_MECH,
+    C_TORQUE_LIM,
+    C_TORQUE_MIRROR_RATIO,
+    C_TORQUE_RAMP_RATE,
     C_TT_AR,
     C_TT_DR,
     C_TT_TA,
@@ -64,6 +94,10 @@ from .layout import (
     C_TT_XF,
     C_TT_XI,
     C_TT_YACC,
+    C_TUNE_FREQ,
+    C_TUNE_POS_AMP,
+    C_TUNE_TQ_AMP,
+    C_TUNE_VEL_AMP,
     C_UV_TRIP,
     C_VBUS,
     C_VBUS_CHECKS,
@@ -72,30 +106,47 @@ from .layout import (
     C_VEL_INT_GAIN,
     C_VEL_INT_LIMIT,
     C_VEL_LIMIT,
+    C_VEL_RAMP_RATE,
     C_VEL_TOL,
     C_WD_ENABLE,
+    CONTROL_MODE_POSITION,
+    CONTROL_MODE_VELOCITY,
+    CONTROLLER_ERROR_INVALID_ESTIMATE,
+    CONTROLLER_ERROR_INVALID_INPUT_MODE,
+    CONTROLLER_ERROR_INVALID_MIRROR_AXIS,
     CONTROLLER_ERROR_OVERSPEED,
+    CONTROLLER_ERROR_SPINOUT_DETECTED,
     F_BELT_K,
     F_ENC_ON,
     I_AXIS_ERR,
+    I_CONNECTED,
     I_COUNTS,
     I_CTRL_ERR,
     I_MODE,
     I_MOTOR_ERR,
     I_SYS_ERR,
+    I_TQ_PRESENT,
     I_TRAJ_DONE,
+    INPUT_MODE_INACTIVE,
+    INPUT_MODE_MIRROR,
     INPUT_MODE_PASSTHROUGH,
     INPUT_MODE_POS_FILTER,
+    INPUT_MODE_TORQUE_RAMP,
     INPUT_MODE_TRAP_TRAJ,
+    INPUT_MODE_TUNING,
+    INPUT_MODE_VEL_RAMP,
     LANES,
     MODE_CALIB,
     MODE_IDLE,
     MODE_POSITION,
-    MODE_TORQUE,
     MOTOR_ERROR_CURRENT_LIMIT_VIOLATION,
     MOTOR_ERROR_DC_BUS_OVER_CURRENT,
     MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT,
+    MOTOR_ERROR_I_BUS_OUT_OF_RANGE,
+    MOTOR_ERROR_MODULATION_IS_NAN,
     MOTOR_ERROR_SYSTEM_LEVEL,
+    MOTOR_ERROR_UNKNOWN_TORQUE,
+    MOTOR_ERROR_UNKNOWN_VOLTAGE_COMMAND,
     N_FROWS,
     N_IROWS,
     ODRIVE_ERROR_DC_BUS_OVER_CURRENT,
@@ -110,19 +161,29 @@ from .layout import (
     S_CAL_I,
     S_CAL_POS,
     S_COUNT_F,
+    S_ELEC_P,
+    S_FOC_POWER,
     S_IBUS,
     S_IBUS_MOTOR,
     S_INTEGRATOR,
     S_IQ,
     S_IQ_MEAS,
+    S_IQ_SP,
+    S_MECH_P,
     S_OSC,
+    S_POS_CIRC,
     S_POS_EST,
     S_POS_SP,
+    S_TQ_OUT,
     S_TQ_SP,
     S_TT_T,
+    S_TUNE_PHASE,
+    S_V_INT,
+    S_V_PREV,
     S_VEL_EST,
     S_VEL_SP,
     S_WD_TIMER,
+    V_MAX_PER_VBUS,
     X_PHI1,
 )
 from .mechanics import _at, _mechanics_leg, _mechanics_plain, _param_row, _plain_block
@@ -131,16 +192,24 @@ from .stages import (
     TWO_PI,
     brake_current,
     bus_fault,
-    current_loop,
+    clamp,
+    current_gains,
+    current_setpoint,
     current_violation,
     encoder_counts,
     encoder_pll,
+    fmodf_pos,
+    foc_voltage,
     integrator_step,
+    max_torque,
     motor_bus_current,
+    motor_current,
+    motor_plant,
     overspeed,
+    spinout,
     torque_command,
     torque_limit,
-    velocity_command,
+    wrap_pm,
 )
 from .vector import _run_block_vector, _vector_block
 
@@ -169,7 +238,7 @@ def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
     unmodeled effects' parameters, the F_ indices, each off at zero); MECH[b] 0 five-bar,
     1 independent inertias; DRV = (gear_ratio, cpr, direction, q_rest1, q_rest2,
     joint_of_axis0, encoder_noise, current_noise, true torque constant, quantize, true pole
-    pairs, phase resistance [ohm]); TT[b, i, axis] a torque table applied
+    pairs, phase resistance [ohm], phase inductance [H]); TT[b, i, axis] a torque table applied
     to axes in torque mode, row i = tick // tt_period (ignored when it has no rows);
     REC[b, k] = (t, counts0, counts1, Iq0, Iq1) every ``rec_every`` ticks from row
     ``rec_offset``. The legs go in blocks of ``block``, a thread's unit of work (see
@@ -257,9 +326,10 @@ def _board_checks(b, C, AS, AI):
 
 @njit(cache=True, inline="always")
 def _encoder_tick(b, a, q, rng, dt, C, AS, AI, FR, DRV, turns_per_rad, inv_cpr):
-    """encoder.cpp: the reading of joint angle ``q`` (noise, the plant's reading error,
-    quantization) and the PLL; (rng, the rotor's turns from rest, pos_estimate,
-    vel_estimate)."""
+    """encoder.cpp:651-809: the reading of joint angle ``q`` (noise, the plant's reading
+    error, quantization at the encoder's own resolution) and the PLL, whose counts are
+    turned into turns by the *configured* cpr (``inv_cpr`` = 1 / encoder.config.cpr,
+    encoder.cpp:800-801); (rng, the rotor's turns from rest, pos_estimate, vel_estimate)."""
     j = _joint_of(a, DRV)
     cpr = DRV[1]
     turns = DRV[2] * (q - DRV[3 + j]) * turns_per_rad
@@ -300,7 +370,6 @@ def _calibration_tick(b, a, i, turns, rng, dt, C, AS, FB, DRV, inv_vbus):
     AS[b, a, S_IQ] = iq
     rng, nz = _normal(rng)
     AS[b, a, S_IQ_MEAS] = iq + DRV[7] * nz
-    AS[b, a, S_INTEGRATOR] = 0.0
     FB[_at(R_TAU + _joint_of(a, DRV), i)] = DRV[2] * DRV[0] * DRV[8] * iq
     w = AS[b, a, S_VEL_EST] * TWO_PI
     ib = (1.5 * DRV[11] * i_now ** 2 + DRV[8] * iq * w) * inv_vbus
@@ -309,62 +378,191 @@ def _calibration_tick(b, a, i, turns, rng, dt, C, AS, FB, DRV, inv_vbus):
 
 
 @njit(cache=True, inline="always")
-def _disarmed(b, a, i, AS, AI, FB, DRV):
-    """An IDLE axis: no current, the integrator cleared, no torque on its joint."""
+def _disarmed(b, a, i, AS, AI, FB, DRV, iq_sp_idle, fw056):
+    """An IDLE axis: no current, no torque on its joint. The controller's state is the
+    controller's: on 0.5.6 it runs on while IDLE, on 0.5.1 it keeps its last values; both
+    reset it when the axis is armed again (motor.cpp:202, axis.cpp:290-294). On 0.5.6 the
+    motor's update still turns the controller's torque into Iq's setpoint (``iq_sp_idle``:
+    0 when there is none, motor.cpp:513-552; fw-v0.5.1 keeps the last armed one). Iq_measured
+    keeps its last value: the current controller, detached at disarm (motor.cpp:279), no
+    longer updates it."""
     AI[b, a, I_MODE] = MODE_IDLE
     AS[b, a, S_IQ] = 0.0
-    AS[b, a, S_INTEGRATOR] = 0.0
-    AS[b, a, S_IQ_MEAS] = 0.0
+    AS[b, a, S_V_PREV] = 0.0
+    if fw056:
+        AS[b, a, S_IQ_SP] = iq_sp_idle
     AS[b, a, S_IBUS_MOTOR] = 0.0
     FB[_at(R_TAU + _joint_of(a, DRV), i)] = 0.0
 
 
 @njit(cache=True, inline="always")
-def _input_setpoints(b, a, mode, dt, C, AS, AI):
-    """controller.cpp:183-283: the setpoints from the inputs by input_mode (PASSTHROUGH,
-    POS_FILTER, TRAP_TRAJ; INACTIVE keeps them); the end of a trajectory drops the axis
-    into position control (controller.cpp:255-262). Returns the control mode."""
+def _trap_traj(b, a, dt, C, AS, AI, fw056):
+    """controller.cpp:245-269 (the planned trajectory of trapTraj.cpp evaluated at its time;
+    its end drops the configured mode into position control and holds the goal: Xf on 0.5.6,
+    input_pos on 0.5.1, fw-v0.5.1 controller.cpp:197-203)."""
+    if AI[b, a, I_TRAJ_DONE] != 0:
+        return
+    tt = AS[b, a, S_TT_T]
+    ta, tv, td = C[b, a, C_TT_TA], C[b, a, C_TT_TV], C[b, a, C_TT_TD]
+    if tt > ta + tv + td:
+        C[b, a, C_CONTROL_MODE] = CONTROL_MODE_POSITION
+        if AI[b, a, I_MODE] != MODE_IDLE and AI[b, a, I_MODE] != MODE_CALIB:
+            AI[b, a, I_MODE] = MODE_POSITION
+        AS[b, a, S_POS_SP] = C[b, a, C_TT_XF] if fw056 else C[b, a, C_INPUT_POS]
+        AS[b, a, S_VEL_SP] = 0.0
+        AS[b, a, S_TQ_SP] = 0.0
+        AI[b, a, I_TRAJ_DONE] = 1
+        return
+    if tt < 0.0:
+        y, yd, ydd = C[b, a, C_TT_XI], C[b, a, C_TT_VI], 0.0
+    elif tt < ta:
+        y = C[b, a, C_TT_XI] + C[b, a, C_TT_VI] * tt + 0.5 * C[b, a, C_TT_AR] * tt * tt
+        yd = C[b, a, C_TT_VI] + C[b, a, C_TT_AR] * tt
+        ydd = C[b, a, C_TT_AR]
+    elif tt < ta + tv:
+        y = C[b, a, C_TT_YACC] + C[b, a, C_TT_VR] * (tt - ta)
+        yd = C[b, a, C_TT_VR]
+        ydd = 0.0
+    else:
+        tdd = tt - (ta + tv + td)
+        y = C[b, a, C_TT_XF] + 0.5 * C[b, a, C_TT_DR] * tdd * tdd
+        yd = C[b, a, C_TT_DR] * tdd
+        ydd = C[b, a, C_TT_DR]
+    AS[b, a, S_POS_SP] = y
+    AS[b, a, S_VEL_SP] = yd
+    AS[b, a, S_TQ_SP] = ydd * C[b, a, C_INERTIA]
+    AS[b, a, S_TT_T] = tt + dt
+
+
+@njit(cache=True, inline="always")
+def _input_setpoints(b, a, dt, C, AS, AI, wrap, fw056):
+    """controller.cpp:183-283: the setpoints from the inputs by input_mode. Returns the
+    controller error of an input mode that cannot run (0: none)."""
     imode = int(C[b, a, C_INPUT_MODE])
+    if imode == INPUT_MODE_INACTIVE:
+        return 0
     if imode == INPUT_MODE_PASSTHROUGH:
         AS[b, a, S_POS_SP] = C[b, a, C_INPUT_POS]
         AS[b, a, S_VEL_SP] = C[b, a, C_INPUT_VEL]
         AS[b, a, S_TQ_SP] = C[b, a, C_INPUT_TORQUE]
-    elif imode == INPUT_MODE_POS_FILTER:
+    elif imode == INPUT_MODE_VEL_RAMP:           # controller.cpp:192-199
+        max_step = abs(dt * C[b, a, C_VEL_RAMP_RATE])
+        step = clamp(C[b, a, C_INPUT_VEL] - AS[b, a, S_VEL_SP], -max_step, max_step)
+        AS[b, a, S_VEL_SP] += step
+        AS[b, a, S_TQ_SP] = (step / dt) * C[b, a, C_INERTIA]
+    elif imode == INPUT_MODE_TORQUE_RAMP:        # controller.cpp:200-206
+        max_step = abs(dt * C[b, a, C_TORQUE_RAMP_RATE])
+        AS[b, a, S_TQ_SP] += clamp(C[b, a, C_INPUT_TORQUE] - AS[b, a, S_TQ_SP], -max_step, max_step)
+    elif imode == INPUT_MODE_POS_FILTER:         # controller.cpp:207-222
         fki = 2.0 * min(C[b, a, C_FILTER_BW], 0.25 / dt)
         fkp = 0.25 * fki * fki
-        acc = fkp * (C[b, a, C_INPUT_POS] - AS[b, a, S_POS_SP]) + fki * (C[b, a, C_INPUT_VEL] - AS[b, a, S_VEL_SP])
-        AS[b, a, S_TQ_SP] = 0.0  # acceleration times config.inertia (0 by default)
+        delta_pos = C[b, a, C_INPUT_POS] - AS[b, a, S_POS_SP]
+        if fw056 and C[b, a, C_CIRCULAR] > 0.0:
+            delta_pos = wrap_pm(delta_pos, wrap)
+        acc = fkp * delta_pos + fki * (C[b, a, C_INPUT_VEL] - AS[b, a, S_VEL_SP])
+        AS[b, a, S_TQ_SP] = acc * C[b, a, C_INERTIA]
         AS[b, a, S_VEL_SP] += dt * acc
         AS[b, a, S_POS_SP] += dt * AS[b, a, S_VEL_SP]
-    elif imode == INPUT_MODE_TRAP_TRAJ and AI[b, a, I_TRAJ_DONE] == 0:
-        tt = AS[b, a, S_TT_T]
-        ta, tv, td = C[b, a, C_TT_TA], C[b, a, C_TT_TV], C[b, a, C_TT_TD]
-        if tt > ta + tv + td:
-            AI[b, a, I_TRAJ_DONE] = 1
-            AS[b, a, S_POS_SP] = C[b, a, C_TT_XF]
-            AS[b, a, S_VEL_SP] = 0.0
-            AS[b, a, S_TQ_SP] = 0.0
-            if mode != MODE_POSITION:
-                mode = MODE_POSITION
-                AI[b, a, I_MODE] = MODE_POSITION
+    elif imode == INPUT_MODE_MIRROR:             # controller.cpp:223-241; fw-v0.5.1 :176-184
+        m = int(C[b, a, C_MIRROR_AXIS])
+        if m < 0 or m > 1:
+            return CONTROLLER_ERROR_INVALID_MIRROR_AXIS
+        ratio = C[b, a, C_MIRROR_RATIO]
+        if fw056:
+            # the other controller's torque output of this tick must be there: axis 1 can
+            # mirror axis 0, whose controller ran first; anything else reads an output not
+            # produced yet (torque_output_ is reset each tick, main.cpp:381)
+            if m >= a or AI[b, m, I_TQ_PRESENT] == 0:
+                return CONTROLLER_ERROR_INVALID_ESTIMATE
+            AS[b, a, S_TQ_SP] = AS[b, m, S_TQ_OUT] * C[b, a, C_TORQUE_MIRROR_RATIO]
+        AS[b, a, S_POS_SP] = AS[b, m, S_POS_EST] * ratio
+        AS[b, a, S_VEL_SP] = AS[b, m, S_VEL_EST] * ratio
+    elif imode == INPUT_MODE_TRAP_TRAJ:
+        _trap_traj(b, a, dt, C, AS, AI, fw056)
+    elif imode == INPUT_MODE_TUNING and fw056:   # controller.cpp:270-277
+        ph = wrap_pm(AS[b, a, S_TUNE_PHASE] + TWO_PI * C[b, a, C_TUNE_FREQ] * dt, TWO_PI)
+        AS[b, a, S_TUNE_PHASE] = ph
+        c, s = math.cos(ph), math.sin(ph)
+        AS[b, a, S_POS_SP] = C[b, a, C_INPUT_POS] + C[b, a, C_TUNE_POS_AMP] * s
+        AS[b, a, S_VEL_SP] = C[b, a, C_INPUT_VEL] + C[b, a, C_TUNE_VEL_AMP] * c
+        AS[b, a, S_TQ_SP] = C[b, a, C_INPUT_TORQUE] - C[b, a, C_TUNE_TQ_AMP] * s
+    else:                                        # controller.cpp:278-281 (MIX_CHANNELS too)
+        return CONTROLLER_ERROR_INVALID_INPUT_MODE
+    return 0
+
+
+@njit(cache=True, inline="always")
+def _controller_update(k, b, a, dt, C, AS, AI, TT, tt_period, fw056):
+    """controller.cpp:143-450 (fw-v0.5.1 controller.cpp:117-346): one update of the
+    controller. Its estimates are the encoder's once connected (the first closed loop of a
+    boot), else 0 (unconnected inputs). Returns (controller error, 0 if none; the torque
+    [N*m])."""
+    connected = AI[b, a, I_CONNECTED] != 0
+    pe = AS[b, a, S_POS_EST] if connected else 0.0
+    ve = AS[b, a, S_VEL_EST] if connected else 0.0
+    circular = C[b, a, C_CIRCULAR] > 0.0
+    wrap = C[b, a, C_CIRC_RANGE] if connected or not fw056 else 0.0
+    if circular:                                   # controller.cpp:173-180
+        C[b, a, C_INPUT_POS] = fmodf_pos(C[b, a, C_INPUT_POS], wrap)
+    err = _input_setpoints(b, a, dt, C, AS, AI, wrap, fw056)
+    if err != 0:
+        return err, 0.0
+    cmode = int(C[b, a, C_CONTROL_MODE])
+    armed = AI[b, a, I_MODE] != MODE_IDLE and AI[b, a, I_MODE] != MODE_CALIB
+    if armed and cmode < CONTROL_MODE_VELOCITY and TT.shape[1] > 0:
+        # leglib's torque table (Twin.run) stands in for input_torque
+        AS[b, a, S_TQ_SP] = TT[b, min(k // tt_period, TT.shape[1] - 1), a]
+    vel_limit = C[b, a, C_VEL_LIMIT]
+    en_vel_limit = C[b, a, C_EN_VEL_LIMIT] > 0.0
+    t_lim = max_torque(C[b, a, C_CURRENT_LIM], C[b, a, C_MAX_CURRENT], C[b, a, C_KT], C[b, a, C_TORQUE_LIM])
+    if fw056:                                      # controller.cpp:285-290 (not in 0.5.1)
+        if en_vel_limit:
+            AS[b, a, S_VEL_SP] = clamp(AS[b, a, S_VEL_SP], -vel_limit, vel_limit)
+        AS[b, a, S_TQ_SP] = clamp(AS[b, a, S_TQ_SP], -t_lim, t_lim)
+    # position control (controller.cpp:292-323)
+    gs = 1.0
+    vel_des = AS[b, a, S_VEL_SP]
+    if cmode >= CONTROL_MODE_POSITION:
+        if circular:
+            pos_sp = fmodf_pos(AS[b, a, S_POS_SP], wrap)
+            AS[b, a, S_POS_SP] = pos_sp
+            pcirc = fmodf_pos(pe + AS[b, a, S_POS_CIRC], wrap) if connected or not fw056 else 0.0
+            pos_err = wrap_pm(pos_sp - pcirc, wrap)
         else:
-            if tt < 0.0:
-                y, yd = C[b, a, C_TT_XI], C[b, a, C_TT_VI]
-            elif tt < ta:
-                y = C[b, a, C_TT_XI] + C[b, a, C_TT_VI] * tt + 0.5 * C[b, a, C_TT_AR] * tt * tt
-                yd = C[b, a, C_TT_VI] + C[b, a, C_TT_AR] * tt
-            elif tt < ta + tv:
-                y = C[b, a, C_TT_YACC] + C[b, a, C_TT_VR] * (tt - ta)
-                yd = C[b, a, C_TT_VR]
-            else:
-                tdd = tt - (ta + tv + td)
-                y = C[b, a, C_TT_XF] + 0.5 * C[b, a, C_TT_DR] * tdd * tdd
-                yd = C[b, a, C_TT_DR] * tdd
-            AS[b, a, S_POS_SP] = y
-            AS[b, a, S_VEL_SP] = yd
-            AS[b, a, S_TQ_SP] = 0.0
-            AS[b, a, S_TT_T] = tt + dt
-    return mode
+            pos_err = AS[b, a, S_POS_SP] - pe
+        vel_des += C[b, a, C_POS_GAIN] * pos_err
+        width = C[b, a, C_GAIN_SCHED_WIDTH]
+        if C[b, a, C_EN_GAIN_SCHED] > 0.0 and abs(pos_err) <= width:
+            # width 0 reaches here only with pos_err 0: 0 / 0, NaN on the board (a float
+            # division; numba's would raise)
+            gs = abs(pos_err) / width if width != 0.0 else math.nan
+    if en_vel_limit:                               # controller.cpp:325-329
+        vel_des = clamp(vel_des, -vel_limit, vel_limit)
+    if overspeed(C[b, a, C_EN_OVERSPEED] > 0.0, ve, vel_limit, C[b, a, C_VEL_TOL]):
+        return CONTROLLER_ERROR_OVERSPEED, 0.0    # controller.cpp:331-341
+    vel_gain = C[b, a, C_VEL_GAIN]
+    torque = AS[b, a, S_TQ_SP]
+    v_err = 0.0
+    if cmode >= CONTROL_MODE_VELOCITY:             # controller.cpp:373-385
+        v_err = vel_des - ve
+        torque = torque_command(vel_gain * gs, v_err, AS[b, a, S_INTEGRATOR], torque)
+    elif C[b, a, C_EN_TQ_VEL_LIMIT] > 0.0:         # controller.cpp:387-394
+        torque = clamp(torque, (-vel_limit - ve) * vel_gain, (vel_limit - ve) * vel_gain)
+    torque, limited = torque_limit(torque, t_lim)  # controller.cpp:396-405
+    if cmode < CONTROL_MODE_VELOCITY:              # controller.cpp:407-420
+        AS[b, a, S_INTEGRATOR] = 0.0
+    else:
+        AS[b, a, S_INTEGRATOR] = integrator_step(AS[b, a, S_INTEGRATOR], limited, C[b, a, C_VEL_INT_GAIN] * gs,
+                                                 dt, v_err, C[b, a, C_VEL_INT_LIMIT])
+    if fw056:                                      # controller.cpp:422-441 (0.5.2+)
+        mech, elec, spun = spinout(AS[b, a, S_MECH_P], AS[b, a, S_ELEC_P], torque, ve, AS[b, a, S_FOC_POWER],
+                                   AS[b, a, S_IQ_MEAS], C[b, a, C_PHASE_R], C[b, a, C_MECH_BW], C[b, a, C_ELEC_BW],
+                                   dt, C[b, a, C_SPIN_MECH], C[b, a, C_SPIN_ELEC])
+        AS[b, a, S_MECH_P] = mech
+        AS[b, a, S_ELEC_P] = elec
+        if spun:
+            return CONTROLLER_ERROR_SPINOUT_DETECTED, 0.0
+    return 0, torque
 
 
 @njit(cache=True, inline="always")
@@ -383,77 +581,119 @@ def _step_abort(b, a, mode, pe, C, AS):
 
 
 @njit(cache=True, inline="always")
-def _controller_tick(k, b, a, mode, pe, ve, dt, C, AS, TT, tt_period):
-    """controller.cpp:286-420: the torque the controller asks for [N*m]: from the torque
-    table or setpoint in torque control (with the firmware's torque-mode velocity limiter),
-    else the cascade; limited to the current limit, and the velocity integrator's update."""
-    vel_limit = C[b, a, C_VEL_LIMIT]
-    vel_gain = C[b, a, C_VEL_GAIN]
-    t_lim = C[b, a, C_CURRENT_LIM] * C[b, a, C_KT]
-    if mode == MODE_TORQUE:
-        n_tab = TT.shape[1]
-        torque = TT[b, min(k // tt_period, n_tab - 1), a] if n_tab > 0 else AS[b, a, S_TQ_SP]
-        # enable_torque_mode_vel_limit (controller.cpp:137-141,388-394)
-        torque = min(max(torque, (-vel_limit - ve) * vel_gain), (vel_limit - ve) * vel_gain)
-        torque, limited = torque_limit(torque, t_lim)
-        if C[b, a, C_INT_RESET_TORQUE] > 0.0:   # the integrator is reset in torque control
-            AS[b, a, S_INTEGRATOR] = 0.0
-        return torque
-    vel_des = velocity_command(AS[b, a, S_POS_SP], pe, AS[b, a, S_VEL_SP], C[b, a, C_POS_GAIN], vel_limit,
-                               mode == MODE_POSITION)
-    verr = vel_des - ve
-    torque, limited = torque_limit(torque_command(vel_gain, verr, AS[b, a, S_INTEGRATOR], AS[b, a, S_TQ_SP]),
-                                   t_lim)
-    AS[b, a, S_INTEGRATOR] = integrator_step(AS[b, a, S_INTEGRATOR], limited, C[b, a, C_VEL_INT_GAIN], dt, verr,
-                                             C[b, a, C_VEL_INT_LIMIT])
-    return torque
-
-
-@njit(cache=True, inline="always")
-def _motor_tick(b, a, i, torque, ve, rng, C, AS, AI, FB, DRV, alpha, inv_kt, inv_vbus):
-    """motor.cpp: the current loop reaching the commanded torque's current, its measurement
-    (with noise) and the current-limit trip, the torque on the joint (the motor's true torque
-    constant) and the motor's bus current. (rng, bus current)."""
-    iq = current_loop(AS[b, a, S_IQ], alpha, torque, inv_kt)
-    AS[b, a, S_IQ] = iq
+def _motor_tick(b, a, i, torque, ve, w_joint, rng, C, AS, AI, FB, DRV, inv_kt, inv_vbus, cc_kp, cc_ki_dt, vmax,
+                a_half, inv_r, m_half):
+    """motor.cpp:513-594 and foc.cpp:120-160 with the motor: the torque's current setpoint,
+    the current sampled (with noise) and checked against the trip (motor.cpp:631-644), the
+    current PI's voltage, and the phase current it drives through the motor's R and L
+    against its back-EMF (the rotor's true speed ``w_joint`` [rad/s of the joint]); the
+    torque on the joint from the period's mean current (the motor's true torque constant)
+    and the motor's bus current. (rng, bus current)."""
+    ilim = py_min(C[b, a, C_CURRENT_LIM], C[b, a, C_MAX_CURRENT])
+    iq_sp = current_setpoint(torque, inv_kt, ilim)
+    AS[b, a, S_IQ_SP] = iq_sp
+    i0 = AS[b, a, S_IQ]
     rng, nz = _normal(rng)
-    iq_meas = iq + DRV[7] * nz
+    iq_meas = i0 + DRV[7] * nz
     AS[b, a, S_IQ_MEAS] = iq_meas
-    if current_violation(iq_meas, C[b, a, C_CURRENT_LIM]):
+    if current_violation(iq_meas, C[b, a, C_CURRENT_LIM], C[b, a, C_MAX_CURRENT], C[b, a, C_CURRENT_LIM_MARGIN]):
         AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_CURRENT_LIMIT_VIOLATION
         AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
         AI[b, a, I_MODE] = MODE_IDLE
         AS[b, a, S_IQ] = 0.0
-        iq = 0.0
+        AS[b, a, S_V_PREV] = 0.0
+        FB[_at(R_TAU + _joint_of(a, DRV), i)] = 0.0
+        AS[b, a, S_IBUS_MOTOR] = 0.0
+        return rng, 0.0
+    # feed-forwards (motor.cpp:567-586): the back-EMF from the estimated speed, R * Iq
+    v_ff = 0.0
+    if C[b, a, C_BEMF_FF] > 0.0:
+        v_ff += (2.0 / 3.0) * C[b, a, C_KT] * (TWO_PI * ve)
+    if C[b, a, C_RWL_FF] > 0.0:
+        v_ff += C[b, a, C_PHASE_R] * iq_sp
+    v, integ = foc_voltage(iq_sp, iq_meas, AS[b, a, S_V_INT], cc_kp, cc_ki_dt, v_ff, vmax)
+    AS[b, a, S_V_INT] = integ
+    AS[b, a, S_FOC_POWER] = 1.5 * v * iq_meas     # foc.cpp:175-179: vbus x (mod . Idq)
+    if not v == v:        # foc.cpp:31-32 (gains from an uncalibrated R and L): disarmed
+        AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_MODULATION_IS_NAN
+        AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
+        AI[b, a, I_MODE] = MODE_IDLE
+        AS[b, a, S_IQ] = 0.0
+        AS[b, a, S_V_PREV] = 0.0
+        FB[_at(R_TAU + _joint_of(a, DRV), i)] = 0.0
+        AS[b, a, S_IBUS_MOTOR] = 0.0
+        return rng, 0.0
+    # the motor's back-EMF: its flux linkage (2/3) kt / pole_pairs times the electrical speed
+    e_bemf = (2.0 / 3.0) * DRV[8] * (DRV[2] * DRV[0] * w_joint)
+    i_next, i_mean = motor_current(i0, AS[b, a, S_V_PREV], v, e_bemf, a_half, inv_r, m_half)
+    AS[b, a, S_V_PREV] = v
+    AS[b, a, S_IQ] = i_next
     # the motor's own torque constant makes the torque; the configured one only converts
     # the torque command to a current
-    FB[_at(R_TAU + _joint_of(a, DRV), i)] = DRV[2] * DRV[0] * DRV[8] * iq
-    ib = motor_bus_current(DRV[11], iq, DRV[8], ve, inv_vbus)
+    FB[_at(R_TAU + _joint_of(a, DRV), i)] = DRV[2] * DRV[0] * DRV[8] * i_mean
+    ib = motor_bus_current(DRV[11], i_mean, DRV[8], ve, inv_vbus)
     AS[b, a, S_IBUS_MOTOR] = ib
     return rng, ib
 
 
 @njit(cache=True, inline="always")
-def _axis_tick(k, b, a, i, q, rng, dt, C, AS, AI, FR, FB, DRV, TT, tt_period, turns_per_rad, inv_cpr, alpha,
-               inv_kt, inv_vbus):
-    """One control tick of axis ``a`` of leg ``b`` (Axis::run_control_loop): the encoder, then
-    calibration, IDLE, or the controller and the motor. (rng, bus current, abort code)."""
+def _controller_failed(b, a, err, mode, fw056, C, AI):
+    """What a failed controller update leaves (0.5.6: main.cpp:443-445 the axis error,
+    motor.cpp:515-518 the motor without a torque once connected to the controller, and for
+    an armed closed loop foc.cpp:82-83 with motor.cpp:707-714: disarmed without a voltage
+    command; 0.5.1: the closed loop ends, fw-v0.5.1 axis.cpp:347-348). Returns the mode."""
+    AI[b, a, I_CTRL_ERR] |= err
+    AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_CONTROLLER_FAILED
+    if fw056 and AI[b, a, I_CONNECTED] != 0:
+        AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_UNKNOWN_TORQUE
+        if mode != MODE_IDLE and mode != MODE_CALIB:
+            AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_UNKNOWN_VOLTAGE_COMMAND
+            AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
+    if mode == MODE_CALIB:
+        return mode        # the calibration drives the motor; the axis error ends it next tick
+    return MODE_IDLE
+
+
+@njit(cache=True, inline="always")
+def _axis_tick(k, b, a, i, q, w_joint, rng, dt, C, AS, AI, FR, FB, DRV, TT, tt_period, turns_per_rad, inv_cpr,
+               inv_kt, inv_vbus, cc_kp, cc_ki_dt, vmax, a_half, inv_r, m_half):
+    """One control tick of axis ``a`` of leg ``b`` (main.cpp:429-461): the encoder, the
+    controller (every tick in every state on 0.5.6; in closed loop on 0.5.1), then the
+    motor: armed by the controller, by a calibration, or IDLE. (rng, bus current, abort
+    code)."""
     rng, turns, pe, ve = _encoder_tick(b, a, q, rng, dt, C, AS, AI, FR, DRV, turns_per_rad, inv_cpr)
     mode = AI[b, a, I_MODE]
+    fw056 = C[b, 0, C_FW_056] > 0.0
+    AI[b, a, I_TQ_PRESENT] = 0
+    torque = 0.0
+    iq_sp_idle = 0.0
+    if fw056 or (mode != MODE_IDLE and mode != MODE_CALIB):
+        err, torque = _controller_update(k, b, a, dt, C, AS, AI, TT, tt_period, fw056)
+        if err != 0:
+            mode = _controller_failed(b, a, err, mode, fw056, C, AI)
+        else:
+            AS[b, a, S_TQ_OUT] = torque
+            AI[b, a, I_TQ_PRESENT] = 1
+            mode = AI[b, a, I_MODE]      # a trajectory's end may have switched it
+            if AI[b, a, I_CONNECTED] != 0:
+                iq_sp_idle = current_setpoint(torque, inv_kt, py_min(C[b, a, C_CURRENT_LIM], C[b, a, C_MAX_CURRENT]))
+    code = ABORT_NONE
+    ib = 0.0
     if mode == MODE_CALIB:
         rng, ib = _calibration_tick(b, a, i, turns, rng, dt, C, AS, FB, DRV, inv_vbus)
-        return rng, ib, ABORT_NONE
-    if overspeed(mode != MODE_IDLE, ve, C[b, a, C_VEL_LIMIT], C[b, a, C_VEL_TOL]):
-        AI[b, a, I_CTRL_ERR] |= CONTROLLER_ERROR_OVERSPEED
-        AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_CONTROLLER_FAILED
-        mode = MODE_IDLE
-    if mode == MODE_IDLE:
-        _disarmed(b, a, i, AS, AI, FB, DRV)
-        return rng, 0.0, ABORT_NONE
-    mode = _input_setpoints(b, a, mode, dt, C, AS, AI)
-    code = _step_abort(b, a, mode, pe, C, AS)
-    torque = _controller_tick(k, b, a, mode, pe, ve, dt, C, AS, TT, tt_period)
-    rng, ib = _motor_tick(b, a, i, torque, ve, rng, C, AS, AI, FB, DRV, alpha, inv_kt, inv_vbus)
+    elif mode == MODE_IDLE:
+        _disarmed(b, a, i, AS, AI, FB, DRV, iq_sp_idle, fw056)
+    else:
+        code = _step_abort(b, a, mode, pe, C, AS)
+        rng, ib = _motor_tick(b, a, i, torque, ve, w_joint, rng, C, AS, AI, FB, DRV, inv_kt, inv_vbus, cc_kp,
+                              cc_ki_dt, vmax, a_half, inv_r, m_half)
+    # motor.cpp:726-730 (0.5.2+): the motor's bus current outside its hard limits, in every state
+    if not (C[b, a, C_IBUS_MIN] <= ib <= C[b, a, C_IBUS_MAX]):
+        AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_I_BUS_OUT_OF_RANGE
+        AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
+        if AI[b, a, I_MODE] != MODE_IDLE:
+            _disarmed(b, a, i, AS, AI, FB, DRV, AS[b, a, S_IQ_SP], False)
+            ib = 0.0
     return rng, ib, code
 
 
@@ -483,7 +723,7 @@ def _bus_tick(b, i, ibus_axes, C, AS, AI, FB, inv_vbus, inv_brake_r):
         AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
         AI[b, a, I_MODE] = MODE_IDLE
         AS[b, a, S_IQ] = 0.0
-        AS[b, a, S_INTEGRATOR] = 0.0
+        AS[b, a, S_V_PREV] = 0.0
     if not old_style:
         AI[b, 0, I_SYS_ERR] |= (ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT if over_neg
                                 else ODRIVE_ERROR_DC_BUS_OVER_CURRENT)
@@ -493,12 +733,12 @@ def _bus_tick(b, i, ibus_axes, C, AS, AI, FB, inv_vbus, inv_brake_r):
 
 @njit(cache=True, inline="always")
 def _abort_step(k, b, i, code, AS, AI, FB, ABORT):
-    """leglib's abort: both axes IDLE, no current, the integrators cleared; the first abort's
-    tick and reason recorded."""
+    """leglib's abort: both axes IDLE (as a request of IDLE does: the controller keeps its
+    state, motor.cpp:218-228), no current; the first abort's tick and reason recorded."""
     for a in range(2):
         AI[b, a, I_MODE] = MODE_IDLE
         AS[b, a, S_IQ] = 0.0
-        AS[b, a, S_INTEGRATOR] = 0.0
+        AS[b, a, S_V_PREV] = 0.0
     FB[_at(R_TAU + 0, i)] = 0.0
     FB[_at(R_TAU + 1, i)] = 0.0
     if ABORT[b, 1] == ABORT_NONE:
@@ -517,10 +757,11 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
     nb = b1 - b0
     n_rec = REC.shape[1]
     turns_per_rad = DRV[0] / TWO_PI
-    inv_cpr = 1.0 / DRV[1]
     # per-call invariants by leg (the host changes C only between calls): the current
     # loop's discrete pole, and reciprocals (a division in the tick loop is costly)
-    ALPHA, INV_KT = np.empty((nb, 2)), np.empty((nb, 2))
+    CC_KP, CC_KI_DT, INV_KT, INV_CPR = np.empty((nb, 2)), np.empty((nb, 2)), np.empty((nb, 2)), np.empty((nb, 2))
+    VMAX = np.empty(nb)
+    a_half, inv_r, m_half = motor_plant(DRV, dt)
     INV_VBUS, INV_BRAKE_R = np.empty(nb), np.empty(nb)
     INV_VS, INV_VSM = np.empty(nb), np.empty(nb)
     # the legs' joints, time, torques, dead and non-finite flags in the block's rows
@@ -532,9 +773,12 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
     for i in range(nb):
         b = b0 + i
         for a in range(2):
-            ALPHA[i, a] = 1.0 - math.exp(-C[b, a, C_CURRENT_BW] * dt)
+            CC_KP[i, a], CC_KI_DT[i, a] = current_gains(C[b, a, C_CURRENT_BW], C[b, a, C_PHASE_R],
+                                                        C[b, a, C_PHASE_L], dt)
             INV_KT[i, a] = 1.0 / C[b, a, C_KT]
+            INV_CPR[i, a] = 1.0 / C[b, a, C_CPR]
         INV_VBUS[i], INV_BRAKE_R[i] = 1.0 / C[b, 0, C_VBUS], 1.0 / C[b, 0, C_BRAKE_R]
+        VMAX[i] = V_MAX_PER_VBUS * C[b, 0, C_VBUS]
         INV_VS[i], INV_VSM[i] = 1.0 / FR[b, 6], 1.0 / FR[b, 7]
         for n in range(5):
             FB[_at(R_Q + n, i)] = X[b, n]
@@ -566,10 +810,13 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
             for a in range(2):
                 j = _joint_of(a, DRV)
                 q = FB[_at(R_Q + 2 * j, i)] if plain else X[b, 2 * j]
+                w = FB[_at(R_Q + 2 * j + 1, i)] if plain else X[b, 2 * j + 1]
                 if FR[b, F_BELT_K] > 0.0:       # compliant belt: the encoder is on the rotor
                     q = X[b, X_PHI1 + 2 * j]
-                rng, ib, code = _axis_tick(k, b, a, i, q, rng, dt, C, AS, AI, FR, FB, DRV, TT, tt_period,
-                                           turns_per_rad, inv_cpr, ALPHA[i, a], INV_KT[i, a], INV_VBUS[i])
+                    w = X[b, X_PHI1 + 2 * j + 1]
+                rng, ib, code = _axis_tick(k, b, a, i, q, w, rng, dt, C, AS, AI, FR, FB, DRV, TT, tt_period,
+                                           turns_per_rad, INV_CPR[i, a], INV_KT[i, a], INV_VBUS[i], CC_KP[i, a],
+                                           CC_KI_DT[i, a], VMAX[i], a_half, inv_r, m_half)
                 ibus_axes += ib
                 if code != ABORT_NONE:
                     abort_code = code

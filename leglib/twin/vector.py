@@ -23,47 +23,70 @@ from ..abort import (
     ABORT_POSITION_ERROR,
     _oscillation_step,
 )
-from ..kernelmath import select
+from ..kernelmath import py_min, select
 from .layout import (
     AXIS_ERROR_CONTROLLER_FAILED,
     AXIS_ERROR_MOTOR_FAILED,
+    C_BEMF_FF,
     C_BRAKE_ON,
     C_BRAKE_R,
+    C_CIRCULAR,
+    C_CONTROL_MODE,
+    C_CPR,
     C_CURRENT_BW,
     C_DC_MAX_NEG,
     C_DC_MAX_POS,
+    C_EN_GAIN_SCHED,
+    C_EN_OVERSPEED,
+    C_EN_VEL_LIMIT,
     C_ENCODER_BW,
+    C_FW_056,
+    C_IBUS_MAX,
+    C_IBUS_MIN,
     C_INPUT_MODE,
     C_KT,
     C_MAX_REGEN,
+    C_PHASE_L,
+    C_PHASE_R,
     C_REGEN_ERR_STYLE,
+    C_RWL_FF,
     C_VBUS,
+    C_VBUS_CHECKS,
     C_WD_ENABLE,
+    CONTROL_MODE_POSITION,
     CONTROLLER_ERROR_OVERSPEED,
+    CONTROLLER_ERROR_SPINOUT_DETECTED,
     F_ENC_ON,
     G_BRAKE_I,
     G_BRAKE_ON,
     G_BRAKE_R,
     G_DCN,
     G_DCP,
+    G_FW056,
     G_IBUS,
     G_IBUS_AXES,
     G_INV_BRAKE_R,
     G_INV_VBUS,
     G_MAX_REGEN,
     G_STYLE,
+    G_TAU_AXIS0,
     G_VBUS,
     I_AXIS_ERR,
+    I_CONNECTED,
     I_COUNTS,
     I_CTRL_ERR,
     I_MODE,
     I_MOTOR_ERR,
     I_SYS_ERR,
+    I_TQ_PRESENT,
     INPUT_MODE_PASSTHROUGH,
     K_AE,
-    K_ALPHA,
+    K_CCKI,
+    K_CCKP,
     K_CLIM,
+    K_ELECBW,
     K_FROM_C,
+    K_INVCPR,
     K_INVKT,
     K_IPOS,
     K_ITQ,
@@ -71,12 +94,20 @@ from .layout import (
     K_KI,
     K_KP,
     K_KT,
+    K_MARGIN,
+    K_MAXI,
+    K_MECHBW,
     K_OFF,
     K_PG,
+    K_PHR,
+    K_SPINE,
+    K_SPINM,
+    K_TLIM,
     K_VG,
     K_VIG,
     K_VIL,
     K_VL,
+    K_VMAX,
     K_VTOL,
     LANES,
     MODE_IDLE,
@@ -85,10 +116,13 @@ from .layout import (
     MOTOR_ERROR_DC_BUS_OVER_CURRENT,
     MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT,
     MOTOR_ERROR_SYSTEM_LEVEL,
+    MOTOR_ERROR_UNKNOWN_TORQUE,
+    MOTOR_ERROR_UNKNOWN_VOLTAGE_COMMAND,
     N_FROWS,
     N_IROWS,
     N_K,
     N_V,
+    N_VS,
     N_W,
     ODRIVE_ERROR_DC_BUS_OVER_CURRENT,
     ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT,
@@ -109,27 +143,44 @@ from .layout import (
     R_W1,
     S_BRAKE_I,
     S_COUNT_F,
+    S_ELEC_P,
+    S_FOC_POWER,
     S_IBUS,
     S_IBUS_MOTOR,
     S_INTEGRATOR,
     S_IQ,
     S_IQ_MEAS,
+    S_IQ_SP,
+    S_MECH_P,
     S_OSC,
     S_POS_EST,
     S_POS_SP,
+    S_TQ_OUT,
     S_TQ_SP,
+    S_V_INT,
+    S_V_PREV,
     S_VEL_EST,
     S_VEL_SP,
     V_CNTF,
+    V_CONN,
+    V_ELECP,
+    V_FOCP,
     V_IBM,
     V_INT,
     V_IQ,
     V_IQM,
+    V_IQSP,
+    V_MAX_PER_VBUS,
+    V_MECHP,
     V_OSC,
     V_PE,
     V_PSP,
+    V_TQOUT,
+    V_TQP,
     V_TSP,
     V_VE,
+    V_VINT,
+    V_VPREV,
     V_VSP,
     W_AXERR,
     W_COUNTS,
@@ -142,16 +193,22 @@ from .rng import _normal
 from .stages import (
     brake_current,
     bus_fault,
-    current_loop,
+    clamp,
+    current_gains,
+    current_setpoint,
     current_violation,
     encoder_counts,
     encoder_pll,
+    foc_voltage,
     integrator_step,
+    max_torque,
     motor_bus_current,
+    motor_current,
+    motor_plant,
     overspeed,
+    spinout,
     torque_command,
     torque_limit,
-    velocity_command,
 )
 
 
@@ -159,9 +216,14 @@ from .stages import (
 def _vector_block(b0, b1, FR, C, AI):
     """Whether legs b0..b1-1 of a plain block (see :func:`_plain_block`) can take
     :func:`_run_block_vector`: no encoder reading error, and every axis in position control
-    or IDLE with its inputs passed through and no watchdog."""
+    (configured, and armed or IDLE) with its inputs passed through, no watchdog, and the
+    controller's optional features at their defaults (velocity limit and overspeed check
+    on, no gain scheduling, no circular setpoints), a calibrated current controller without
+    feed-forwards or bus-current limits; and no bus-voltage trips to check (a bare Twin's,
+    or a virtual ODrive's step batch, which checks beforehand that they are out of reach:
+    kernel._board_checks is not on this path)."""
     for b in range(b0, b1):
-        if FR[b, F_ENC_ON] > 0.0:
+        if FR[b, F_ENC_ON] > 0.0 or C[b, 0, C_VBUS_CHECKS] > 0.0:
             return False
         for a in range(2):
             mode = AI[b, a, I_MODE]
@@ -169,15 +231,24 @@ def _vector_block(b0, b1, FR, C, AI):
                 return False
             if C[b, a, C_INPUT_MODE] != INPUT_MODE_PASSTHROUGH or C[b, a, C_WD_ENABLE] > 0.0:
                 return False
+            if C[b, a, C_CONTROL_MODE] != CONTROL_MODE_POSITION or C[b, a, C_CIRCULAR] > 0.0:
+                return False
+            if not (C[b, a, C_EN_VEL_LIMIT] > 0.0 and C[b, a, C_EN_OVERSPEED] > 0.0) or C[b, a, C_EN_GAIN_SCHED] > 0.0:
+                return False
+            # a calibrated current controller without feed-forwards or bus-current trips
+            if not C[b, a, C_PHASE_L] > 0.0 or C[b, a, C_BEMF_FF] > 0.0 or C[b, a, C_RWL_FF] > 0.0:
+                return False
+            if C[b, a, C_IBUS_MIN] != -np.inf or C[b, a, C_IBUS_MAX] != np.inf:
+                return False
     return True
 
 
 @njit(cache=True, inline="always")
-def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, cpr, inv_cpr, enc_noise,
-                 cur_noise, quantize, N, kt_true, r_phase, inv_vbus):
+def _axis_vector(i, a, FB, IB, q, w_joint, q_rest, rng, alive, dt, dirn, turns_per_rad, cpr, enc_noise,
+                 cur_noise, quantize, N, kt_true, r_phase, inv_vbus, fw056, a_half, inv_r, m_half):
     """One tick of axis ``a`` (a constant) of leg ``i`` of a vectorized block, its joint at
-    ``q``: what the per-leg controller of :func:`_run_block` does for an axis in position
-    control or IDLE with passthrough inputs, the same operations in the same order,
+    ``q``: what the per-leg tick of :func:`_run_block` does for an axis in position
+    control, armed or IDLE, with passthrough inputs, the same operations in the same order,
     branches turned into selects. Returns (rng, joint torque, bus current, abort code)."""
     rv, rk, rw = R_V0 + a * N_V, R_K0 + a * N_K, R_W0 + a * N_W
     # encoder and PLL: every tick, IDLE included
@@ -187,24 +258,55 @@ def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, c
     counts, counts_i = encoder_counts(raw, FB[_at(rk + K_OFF, i)], quantize)
     pe0 = FB[_at(rv + V_PE, i)]
     ve0 = FB[_at(rv + V_VE, i)]
-    pe, ve = encoder_pll(pe0, ve0, counts, dt, FB[_at(rk + K_KP, i)], FB[_at(rk + K_KI, i)], inv_cpr)
-    # the board's check, then overspeed
+    pe, ve = encoder_pll(pe0, ve0, counts, dt, FB[_at(rk + K_KP, i)], FB[_at(rk + K_KI, i)],
+                         FB[_at(rk + K_INVCPR, i)])
+    # the board's check
     mode0 = IB[_at(rw + W_MODE, i)]
     axis_err0 = IB[_at(rw + W_AXERR, i)]
     mode = select(axis_err0 != 0, MODE_IDLE, mode0)
+    armed = mode != MODE_IDLE
+    # the controller: every tick on 0.5.6, in closed loop on 0.5.1; its estimates the
+    # encoder's once connected, else 0
+    connected = FB[_at(rv + V_CONN, i)] != 0.0
+    ctrl = fw056 | armed
+    pe_c = select(connected, pe, 0.0)
+    ve_c = select(connected, ve, 0.0)
     vel_limit = FB[_at(rk + K_VL, i)]
-    over = overspeed(mode != MODE_IDLE, ve, vel_limit, FB[_at(rk + K_VTOL, i)])
-    ctrl_err = IB[_at(rw + W_CTRLERR, i)] | select(over, CONTROLLER_ERROR_OVERSPEED, 0)
-    axis_err = axis_err0 | select(over, AXIS_ERROR_CONTROLLER_FAILED, 0)
-    active = (mode != MODE_IDLE) & (not over)
-    # position control with passthrough inputs
-    pos_sp = FB[_at(rk + K_IPOS, i)]
-    vel_in = FB[_at(rk + K_IVEL, i)]
-    tq_in = FB[_at(rk + K_ITQ, i)]
     kt = FB[_at(rk + K_KT, i)]
     vel_gain = FB[_at(rk + K_VG, i)]
     current_lim = FB[_at(rk + K_CLIM, i)]
-    t_lim = current_lim * kt
+    max_i = FB[_at(rk + K_MAXI, i)]
+    t_lim = max_torque(current_lim, max_i, kt, FB[_at(rk + K_TLIM, i)])
+    pos_sp = FB[_at(rk + K_IPOS, i)]
+    vel_in = FB[_at(rk + K_IVEL, i)]
+    tq_in = FB[_at(rk + K_ITQ, i)]
+    vel_sp = select(fw056, clamp(vel_in, -vel_limit, vel_limit), vel_in)
+    tq_sp = select(fw056, clamp(tq_in, -t_lim, t_lim), tq_in)
+    over = ctrl & overspeed(True, ve_c, vel_limit, FB[_at(rk + K_VTOL, i)])
+    vel_des = clamp(vel_sp + FB[_at(rk + K_PG, i)] * (pos_sp - pe_c), -vel_limit, vel_limit)
+    verr = vel_des - ve_c
+    integ0 = FB[_at(rv + V_INT, i)]
+    torque, limited = torque_limit(torque_command(vel_gain, verr, integ0, tq_sp), t_lim)
+    integ = integrator_step(integ0, limited, FB[_at(rk + K_VIG, i)], dt, verr, FB[_at(rk + K_VIL, i)])
+    # the spinout check (0.5.6), on the current controller's last power and current
+    iqm0 = FB[_at(rv + V_IQM, i)]
+    mechp0, elecp0, focp0 = FB[_at(rv + V_MECHP, i)], FB[_at(rv + V_ELECP, i)], FB[_at(rv + V_FOCP, i)]
+    mechp, elecp, spun = spinout(mechp0, elecp0, torque, ve_c, focp0, iqm0, FB[_at(rk + K_PHR, i)],
+                                 FB[_at(rk + K_MECHBW, i)], FB[_at(rk + K_ELECBW, i)], dt, FB[_at(rk + K_SPINM, i)],
+                                 FB[_at(rk + K_SPINE, i)])
+    powers = ctrl & (not over) & fw056
+    spin = powers & spun
+    fail = over | spin
+    ok = ctrl & (not fail)
+    unknown_torque = fail & fw056 & connected
+    ctrl_err = IB[_at(rw + W_CTRLERR, i)] | select(over, CONTROLLER_ERROR_OVERSPEED, 0) \
+        | select(spin, CONTROLLER_ERROR_SPINOUT_DETECTED, 0)
+    axis_err = axis_err0 | select(fail, AXIS_ERROR_CONTROLLER_FAILED, 0) \
+        | select(unknown_torque & armed, AXIS_ERROR_MOTOR_FAILED, 0)
+    motor_err = IB[_at(rw + W_MOTERR, i)] | select(unknown_torque, MOTOR_ERROR_UNKNOWN_TORQUE, 0) \
+        | select(unknown_torque & armed, MOTOR_ERROR_UNKNOWN_VOLTAGE_COMMAND, 0)
+    active = armed & (not fail)
+    # leglib's abort rule on an armed axis
     abort_error = FB[_at(rk + K_AE, i)]
     err = pos_sp - pe
     checked = active & (abort_error > 0.0)
@@ -215,45 +317,64 @@ def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, c
     n0, n1, n2, n3, n4, n5, unstable = _oscillation_step(o0, o1, o2, o3, o4, o5, err, 0.025 * abort_error)
     growing = osc_on & unstable
     code_a = select(too_far, ABORT_POSITION_ERROR, select(growing, ABORT_OSCILLATION, ABORT_NONE))
-    vel_des = velocity_command(pos_sp, pe, vel_in, FB[_at(rk + K_PG, i)], vel_limit, True)
-    verr = vel_des - ve
-    integ0 = FB[_at(rv + V_INT, i)]
-    torque, limited = torque_limit(torque_command(vel_gain, verr, integ0, tq_in), t_lim)
-    integ = integrator_step(integ0, limited, FB[_at(rk + K_VIG, i)], dt, verr, FB[_at(rk + K_VIL, i)])
+    # the motor: current setpoint, the sampled current and its trip, the current PI and the
+    # phase current it drives (kernel._motor_tick)
+    ilim = py_min(current_lim, max_i)
+    iq_sp = current_setpoint(torque, FB[_at(rk + K_INVKT, i)], ilim)
     iq0 = FB[_at(rv + V_IQ, i)]
-    iq = current_loop(iq0, FB[_at(rk + K_ALPHA, i)], torque, FB[_at(rk + K_INVKT, i)])
     rng2, nz = _normal(rng1)
-    iq_meas = iq + cur_noise * nz
-    violated = active & current_violation(iq_meas, current_lim)
-    motor_err = IB[_at(rw + W_MOTERR, i)] | select(violated, MOTOR_ERROR_CURRENT_LIMIT_VIOLATION, 0)
+    iq_meas = iq0 + cur_noise * nz
+    violated = active & current_violation(iq_meas, current_lim, max_i, FB[_at(rk + K_MARGIN, i)])
+    motor_err = motor_err | select(violated, MOTOR_ERROR_CURRENT_LIMIT_VIOLATION, 0)
     axis_err = axis_err | select(violated, AXIS_ERROR_MOTOR_FAILED, 0)
-    iq = select(violated, 0.0, iq)
-    tau = dirn * N * kt_true * iq
-    ib = motor_bus_current(r_phase, iq, kt_true, ve, inv_vbus)
+    vint0 = FB[_at(rv + V_VINT, i)]
+    v, vint = foc_voltage(iq_sp, iq_meas, vint0, FB[_at(rk + K_CCKP, i)], FB[_at(rk + K_CCKI, i)], 0.0,
+                          FB[_at(rk + K_VMAX, i)])
+    e_bemf = (2.0 / 3.0) * kt_true * (dirn * N * w_joint)
+    vprev0 = FB[_at(rv + V_VPREV, i)]
+    i_next, i_mean = motor_current(iq0, vprev0, v, e_bemf, a_half, inv_r, m_half)
+    flows = active & (not violated)
+    tau = dirn * N * kt_true * i_mean
+    ib = motor_bus_current(r_phase, i_mean, kt_true, ve, inv_vbus)
     # write back: a dead leg keeps everything; an IDLE axis zeroes its outputs (the old
     # values loaded first: a select between two loaded values vectorizes, a load
     # under a condition does not)
     cntf0 = FB[_at(rv + V_CNTF, i)]
     counts_i0 = IB[_at(rw + W_COUNTS, i)]
-    iqm0 = FB[_at(rv + V_IQM, i)]
     ibm0 = FB[_at(rv + V_IBM, i)]
+    iqsp0 = FB[_at(rv + V_IQSP, i)]
     psp0, vsp0, tsp0 = FB[_at(rv + V_PSP, i)], FB[_at(rv + V_VSP, i)], FB[_at(rv + V_TSP, i)]
+    tqo0 = FB[_at(rv + V_TQOUT, i)]
     ctrl_err0 = IB[_at(rw + W_CTRLERR, i)]
     motor_err0 = IB[_at(rw + W_MOTERR, i)]
+    tqp0 = FB[_at(rv + V_TQP, i)]
     run = alive & active
     idle = alive & (not active)
+    flowing = alive & flows
+    updated = alive & ctrl
+    done = alive & ok
     osc_new = run & osc_on
     FB[_at(rv + V_PE, i)] = select(alive, pe, pe0)
     FB[_at(rv + V_VE, i)] = select(alive, ve, ve0)
     FB[_at(rv + V_CNTF, i)] = select(alive, counts, cntf0)
     IB[_at(rw + W_COUNTS, i)] = select(alive, counts_i, counts_i0)
-    FB[_at(rv + V_INT, i)] = select(run, integ, select(idle, 0.0, integ0))
-    FB[_at(rv + V_IQ, i)] = select(run, iq, select(idle, 0.0, iq0))
-    FB[_at(rv + V_IQM, i)] = select(run, iq_meas, select(idle, 0.0, iqm0))
-    FB[_at(rv + V_IBM, i)] = select(run, ib, select(idle, 0.0, ibm0))
-    FB[_at(rv + V_PSP, i)] = select(run, pos_sp, psp0)
-    FB[_at(rv + V_VSP, i)] = select(run, vel_in, vsp0)
-    FB[_at(rv + V_TSP, i)] = select(run, tq_in, tsp0)
+    integrated = alive & ctrl & (not over)
+    FB[_at(rv + V_INT, i)] = select(integrated, integ, integ0)
+    FB[_at(rv + V_MECHP, i)] = select(alive & powers, mechp, mechp0)
+    FB[_at(rv + V_ELECP, i)] = select(alive & powers, elecp, elecp0)
+    FB[_at(rv + V_FOCP, i)] = select(flowing, 1.5 * v * iq_meas, focp0)
+    FB[_at(rv + V_TQOUT, i)] = select(done, torque, tqo0)
+    FB[_at(rv + V_TQP, i)] = select(done, 1.0, select(alive, 0.0, tqp0))
+    iqsp_idle = select(done & connected, iq_sp, 0.0)
+    FB[_at(rv + V_IQ, i)] = select(flowing, i_next, select(run | idle, 0.0, iq0))
+    FB[_at(rv + V_VPREV, i)] = select(flowing, v, select(run | idle, 0.0, vprev0))
+    FB[_at(rv + V_VINT, i)] = select(flowing, vint, vint0)
+    FB[_at(rv + V_IQSP, i)] = select(run, iq_sp, select(idle & fw056, iqsp_idle, iqsp0))
+    FB[_at(rv + V_IQM, i)] = select(run, iq_meas, iqm0)
+    FB[_at(rv + V_IBM, i)] = select(flowing, ib, select(run | idle, 0.0, ibm0))
+    FB[_at(rv + V_PSP, i)] = select(updated, pos_sp, psp0)
+    FB[_at(rv + V_VSP, i)] = select(updated, vel_sp, vsp0)
+    FB[_at(rv + V_TSP, i)] = select(updated, tq_sp, tsp0)
     FB[_at(rv + V_OSC, i)] = select(osc_new, n0, o0)
     FB[_at(rv + V_OSC + 1, i)] = select(osc_new, n1, o1)
     FB[_at(rv + V_OSC + 2, i)] = select(osc_new, n2, o2)
@@ -267,22 +388,21 @@ def _axis_vector(i, a, FB, IB, q, q_rest, rng, alive, dt, dirn, turns_per_rad, c
     IB[_at(rw + W_CTRLERR, i)] = select(alive, ctrl_err, ctrl_err0)
     IB[_at(rw + W_MOTERR, i)] = select(alive, motor_err, motor_err0)
     rng_out = select(run, rng2, select(alive, rng1, rng))
-    return rng_out, select(run, tau, 0.0), select(run, ib, 0.0), select(run, code_a, ABORT_NONE)
+    return rng_out, select(flowing, tau, 0.0), select(flowing, ib, 0.0), select(run, code_a, ABORT_NONE)
 
 
 @njit(cache=True, inline="always")
 def _stop_axis(i, a, FB, IB, fault, stop, motor_flag):
     """Axis ``a`` (a constant) of leg ``i`` of a vectorized block after the bus check: a
-    bus fault's error flags, and for a fault or an abort (``stop``) IDLE, no current, the
-    integrator cleared."""
+    bus fault's error flags, and for a fault or an abort (``stop``) IDLE, no current."""
     rv, rw = R_V0 + a * N_V, R_W0 + a * N_W
     motor_err0, axis_err0, mode0 = IB[_at(rw + W_MOTERR, i)], IB[_at(rw + W_AXERR, i)], IB[_at(rw + W_MODE, i)]
-    iq0, integ0 = FB[_at(rv + V_IQ, i)], FB[_at(rv + V_INT, i)]
+    iq0, vprev0 = FB[_at(rv + V_IQ, i)], FB[_at(rv + V_VPREV, i)]
     IB[_at(rw + W_MOTERR, i)] = motor_err0 | select(fault, motor_flag, 0)
     IB[_at(rw + W_AXERR, i)] = axis_err0 | select(fault, AXIS_ERROR_MOTOR_FAILED, 0)
     IB[_at(rw + W_MODE, i)] = select(stop, MODE_IDLE, mode0)
     FB[_at(rv + V_IQ, i)] = select(stop, 0.0, iq0)
-    FB[_at(rv + V_INT, i)] = select(stop, 0.0, integ0)
+    FB[_at(rv + V_VPREV, i)] = select(stop, 0.0, vprev0)
 
 
 @njit(cache=True, error_model="numpy")
@@ -298,32 +418,44 @@ def _control_vector(k, dt, FB, IB, nb, DRV):
     j_of_a0 = int(DRV[5])
     q_rest_joint0, q_rest_joint1 = DRV[3], DRV[4]
     turns_per_rad = N / (2.0 * math.pi)
-    inv_cpr = 1.0 / cpr
+    a_half, inv_r, m_half = motor_plant(DRV, dt)
+    axis0_on_joint0 = j_of_a0 == 0
+    # one loop per axis: both axes in one loop would need more run-time overlap checks
+    # between the block's arrays than the compiler makes, and it would not vectorize. Per
+    # leg the axes still run in order (the noise stream, the mirrored torque)
     for i in range(nb):
         alive = IB[_at(R_DEAD, i)] == 0
-        inv_vbus = FB[_at(R_G + G_INV_VBUS, i)]
-        rng = np.uint64(IB[_at(R_RNG, i)])
-        ibus_sum = 0.0
         # the joints' angles, read from fixed rows (a row chosen at run time would keep
         # the compiler from proving the accesses independent)
         q_joint0, q_joint1 = FB[_at(R_Q, i)], FB[_at(R_Q + 2, i)]
-        axis0_on_joint0 = j_of_a0 == 0
+        w_joint0, w_joint1 = FB[_at(R_Q + 1, i)], FB[_at(R_Q + 3, i)]
         rng, tau_axis0, ib0, code0 = _axis_vector(
-            i, 0, FB, IB, select(axis0_on_joint0, q_joint0, q_joint1),
-            select(axis0_on_joint0, q_rest_joint0, q_rest_joint1), rng, alive, dt, dirn, turns_per_rad, cpr,
-            inv_cpr, enc_noise, cur_noise, quantize, N, kt_true, r_phase, inv_vbus)
+            i, 0, FB, IB, select(axis0_on_joint0, q_joint0, q_joint1), select(axis0_on_joint0, w_joint0, w_joint1),
+            select(axis0_on_joint0, q_rest_joint0, q_rest_joint1), np.uint64(IB[_at(R_RNG, i)]), alive, dt, dirn,
+            turns_per_rad, cpr, enc_noise, cur_noise, quantize, N, kt_true, r_phase,
+            FB[_at(R_G + G_INV_VBUS, i)], FB[_at(R_G + G_FW056, i)] > 0.0, a_half, inv_r, m_half)
+        IB[_at(R_RNG, i)] = np.int64(rng)
+        FB[_at(R_G + G_TAU_AXIS0, i)] = tau_axis0
+        FB[_at(R_G + G_IBUS_AXES, i)] = ib0
+        IB[_at(R_CODE, i)] = code0
+    for i in range(nb):
+        alive = IB[_at(R_DEAD, i)] == 0
+        q_joint0, q_joint1 = FB[_at(R_Q, i)], FB[_at(R_Q + 2, i)]
+        w_joint0, w_joint1 = FB[_at(R_Q + 1, i)], FB[_at(R_Q + 3, i)]
         rng, tau_axis1, ib1, code1 = _axis_vector(
-            i, 1, FB, IB, select(axis0_on_joint0, q_joint1, q_joint0),
-            select(axis0_on_joint0, q_rest_joint1, q_rest_joint0), rng, alive, dt, dirn, turns_per_rad, cpr,
-            inv_cpr, enc_noise, cur_noise, quantize, N, kt_true, r_phase, inv_vbus)
-        ibus_sum += ib0
+            i, 1, FB, IB, select(axis0_on_joint0, q_joint1, q_joint0), select(axis0_on_joint0, w_joint1, w_joint0),
+            select(axis0_on_joint0, q_rest_joint1, q_rest_joint0), np.uint64(IB[_at(R_RNG, i)]), alive, dt, dirn,
+            turns_per_rad, cpr, enc_noise, cur_noise, quantize, N, kt_true, r_phase,
+            FB[_at(R_G + G_INV_VBUS, i)], FB[_at(R_G + G_FW056, i)] > 0.0, a_half, inv_r, m_half)
+        tau_axis0, code0 = FB[_at(R_G + G_TAU_AXIS0, i)], IB[_at(R_CODE, i)]
+        ibus_sum = 0.0
+        ibus_sum += FB[_at(R_G + G_IBUS_AXES, i)]
         ibus_sum += ib1
-        code = select(code1 != ABORT_NONE, code1, code0)
         IB[_at(R_RNG, i)] = np.int64(rng)
         FB[_at(R_TAU, i)] = select(axis0_on_joint0, tau_axis0, tau_axis1)
         FB[_at(R_TAU + 1, i)] = select(axis0_on_joint0, tau_axis1, tau_axis0)
         FB[_at(R_G + G_IBUS_AXES, i)] = ibus_sum
-        IB[_at(R_CODE, i)] = code
+        IB[_at(R_CODE, i)] = select(code1 != ABORT_NONE, code1, code0)
     # a second loop for the board: one loop for everything would hold more memory accesses
     # than the compiler groups for its run-time overlap checks, and it would not vectorize
     for i in range(nb):
@@ -372,7 +504,8 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT,
     FB = np.zeros(N_FROWS * LANES)
     IB = np.zeros(N_IROWS * LANES, np.int64)
     f_slots = (S_POS_EST, S_VEL_EST, S_INTEGRATOR, S_IQ, S_IQ_MEAS, S_COUNT_F, S_POS_SP, S_VEL_SP, S_TQ_SP,
-               S_IBUS_MOTOR, S_OSC, S_OSC + 1, S_OSC + 2, S_OSC + 3, S_OSC + 4, S_OSC + 5)
+               S_IBUS_MOTOR, S_TQ_OUT, S_IQ_SP, S_V_PREV, S_V_INT, S_MECH_P, S_ELEC_P, S_FOC_POWER, S_OSC,
+               S_OSC + 1, S_OSC + 2, S_OSC + 3, S_OSC + 4, S_OSC + 5)
     w_slots = (I_MODE, I_AXIS_ERR, I_CTRL_ERR, I_MOTOR_ERR, I_COUNTS)
     for i in range(nb):
         b = b0 + i
@@ -384,17 +517,23 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT,
             rv = R_V0 if a == 0 else R_V1
             rk = R_K0 if a == 0 else R_K1
             rw = R_W0 if a == 0 else R_W1
-            for n in range(N_V):
+            for n in range(N_VS):
                 FB[_at(rv + n, i)] = AS[b, a, f_slots[n]]
             for n in range(N_W):
                 IB[_at(rw + n, i)] = AI[b, a, w_slots[n]]
+            FB[_at(rv + V_CONN, i)] = float(AI[b, a, I_CONNECTED])
+            FB[_at(rv + V_TQP, i)] = float(AI[b, a, I_TQ_PRESENT])
             for n in range(len(K_FROM_C)):
                 FB[_at(rk + K_FROM_C[n][0], i)] = C[b, a, K_FROM_C[n][1]]
             kp = 2.0 * C[b, a, C_ENCODER_BW]
             FB[_at(rk + K_KP, i)] = kp
             FB[_at(rk + K_KI, i)] = 0.25 * kp * kp
-            FB[_at(rk + K_ALPHA, i)] = 1.0 - math.exp(-C[b, a, C_CURRENT_BW] * dt)
+            kp_cc, ki_cc = current_gains(C[b, a, C_CURRENT_BW], C[b, a, C_PHASE_R], C[b, a, C_PHASE_L], dt)
+            FB[_at(rk + K_CCKP, i)] = kp_cc
+            FB[_at(rk + K_CCKI, i)] = ki_cc
+            FB[_at(rk + K_VMAX, i)] = V_MAX_PER_VBUS * C[b, 0, C_VBUS]
             FB[_at(rk + K_INVKT, i)] = 1.0 / C[b, a, C_KT]
+            FB[_at(rk + K_INVCPR, i)] = 1.0 / C[b, a, C_CPR]
         FB[_at(R_G + G_BRAKE_ON, i)] = C[b, 0, C_BRAKE_ON]
         FB[_at(R_G + G_BRAKE_R, i)] = C[b, 0, C_BRAKE_R]
         FB[_at(R_G + G_MAX_REGEN, i)] = C[b, 0, C_MAX_REGEN]
@@ -402,6 +541,7 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT,
         FB[_at(R_G + G_DCN, i)] = C[b, 0, C_DC_MAX_NEG]
         FB[_at(R_G + G_VBUS, i)] = C[b, 0, C_VBUS]
         FB[_at(R_G + G_STYLE, i)] = C[b, 0, C_REGEN_ERR_STYLE]
+        FB[_at(R_G + G_FW056, i)] = C[b, 0, C_FW_056]
         FB[_at(R_G + G_INV_VBUS, i)] = 1.0 / C[b, 0, C_VBUS]
         FB[_at(R_G + G_INV_BRAKE_R, i)] = 1.0 / C[b, 0, C_BRAKE_R]
         FB[_at(R_G + G_IBUS, i)] = AS[b, 0, S_IBUS]
@@ -443,10 +583,12 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT,
         for a in range(2):
             rv = R_V0 if a == 0 else R_V1
             rw = R_W0 if a == 0 else R_W1
-            for n in range(N_V):
+            for n in range(N_VS):
                 AS[b, a, f_slots[n]] = FB[_at(rv + n, i)]
             for n in range(N_W):
                 AI[b, a, w_slots[n]] = IB[_at(rw + n, i)]
+            AI[b, a, I_CONNECTED] = int(FB[_at(rv + V_CONN, i)])
+            AI[b, a, I_TQ_PRESENT] = int(FB[_at(rv + V_TQP, i)])
         AS[b, 0, S_IBUS] = FB[_at(R_G + G_IBUS, i)]
         AS[b, 0, S_BRAKE_I] = FB[_at(R_G + G_BRAKE_I, i)]
         AI[b, 0, I_SYS_ERR] = IB[_at(R_SYS, i)]

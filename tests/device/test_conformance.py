@@ -12,10 +12,6 @@ a turn, and what the bench cannot do (no hall sensors, no SPI encoder, no spinni
 sensorless) is refused by the twin at the request, naming why. Each docstring says what
 a real board does (file:line at fw-v0.5.6 of Firmware/ unless marked).
 
-Cases that exercise the control kernel's input modes owned by the twin's kernel work
-(VEL_RAMP, circular setpoints, move_incremental) assert the documented behaviour once the
-twin models it; until then the twin refuses them and the case is skipped, naming the
-refusal.
 """
 
 import math
@@ -92,14 +88,6 @@ def _closed_loop(odrv, ax):
     ax.requested_state = V.AXIS_STATE_CLOSED_LOOP_CONTROL
     _sleep(odrv, 0.3)
     assert ax.current_state == V.AXIS_STATE_CLOSED_LOOP_CONTROL, hex(ax.error)
-
-
-def _or_skip_refused(write):
-    """Run ``write``; a refusal of the twin (kernel work not on this branch) skips."""
-    try:
-        write()
-    except (UnmodeledError, ValueError) as exc:
-        pytest.skip(f"the twin refuses this yet: {exc}")
 
 
 # == docs/getting-started.rst ===============================================================
@@ -183,7 +171,8 @@ def test_getting_started_position_control_of_m0():
     """"Position control of M0": FULL_CALIBRATION_SEQUENCE measures R and L (motor
     calibration, ~4 s here: motor.cpp:416-511), then the rotor turns one way and back
     (encoder.cpp:327-462; its start sets shadow_count to count_in_cpr, encoder.cpp:344,
-    so the count may jump by a cpr there); closed loop holds the position; input_pos
+    which an incremental encoder's next update undoes, encoder.cpp:480,657-662,762: the
+    counts stay in the boot frame); closed loop holds the position; input_pos
     moves it [turns]. The leg: a tenth of a turn instead of one (a turn of the motor
     swings the leg into its stops)."""
     odrv = _board(606)
@@ -289,8 +278,12 @@ def test_control_modes_move_incremental():
     _closed_loop(odrv, ax)
     c.config.input_mode = TRAP_TRAJ
     goal = c.input_pos
-    _or_skip_refused(lambda: c.move_incremental(0.05, True))
+    c.move_incremental(0.05, True)
     assert c.input_pos == pytest.approx(goal + 0.05, abs=1e-6)
+    _sleep(odrv, 1.0)                                # the trajectory's end: the setpoint at its goal
+    assert c.trajectory_done and c.pos_setpoint == pytest.approx(goal + 0.05, abs=1e-6)
+    c.move_incremental(-0.02, False)
+    assert c.input_pos == pytest.approx(goal + 0.03, abs=1e-6)
 
 
 def test_control_modes_circular_setpoints():
@@ -298,7 +291,7 @@ def test_control_modes_circular_setpoints():
     [0, circular_setpoint_range) (controller.cpp:174-180)."""
     odrv = _calibrated(611)
     ax, c = odrv.axis0, odrv.axis0.controller
-    _or_skip_refused(lambda: setattr(c.config, "circular_setpoints", True))
+    c.config.circular_setpoints = True
     _closed_loop(odrv, ax)
     c.input_pos = ax.encoder.pos_circular + 1.0
     _sleep(odrv, 0.1)
@@ -321,7 +314,7 @@ def test_control_modes_velocity_and_ramped_velocity():
     c.input_vel = 0.0
     _sleep(odrv, 0.5)
     c.config.vel_ramp_rate = 0.5
-    _or_skip_refused(lambda: setattr(c.config, "input_mode", VEL_RAMP))
+    c.config.input_mode = VEL_RAMP
     c.input_vel = 1.0
     _sleep(odrv, 0.5)
     assert c.vel_setpoint == pytest.approx(0.25, abs=0.02)
@@ -672,7 +665,7 @@ def test_hw_motor_calibration():
     motor = device_of(odrv).twin.motor
     assert ax.current_state == V.AXIS_STATE_IDLE and ax.error == 0 and ax.motor.error == 0
     assert ax.motor.config.phase_resistance == pytest.approx(motor.phase_resistance, rel=0.2)
-    assert ax.motor.config.phase_inductance == pytest.approx(motor.La, rel=0.5)
+    assert ax.motor.config.phase_inductance == pytest.approx(motor.phase_inductance, rel=0.5)
     assert ax.motor.is_calibrated
 
 
@@ -681,7 +674,7 @@ def _written_motor_calibration(odrv, ax):
     motor yaml; here the bench motor's values)."""
     motor = device_of(odrv).twin.motor
     ax.motor.config.phase_resistance = motor.phase_resistance
-    ax.motor.config.phase_inductance = motor.La
+    ax.motor.config.phase_inductance = motor.phase_inductance
     ax.motor.config.pre_calibrated = True
     assert ax.motor.is_calibrated                  # motor.hpp:53-56
 

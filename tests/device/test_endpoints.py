@@ -169,7 +169,7 @@ EXTRA = (
     T.Endpoint("axis*.motor.current_control.Ibus", T.S(L.S_IBUS_MOTOR), until="0.5.1"),
     T.Endpoint("axis*.motor.I_bus", T.S(L.S_IBUS_MOTOR), since="0.5.2"),
     # a writable setting with a check (any kernel slot the tree does not show will do)
-    T.Endpoint("axis*.controller.config.vel_ramp_rate", T.C(L.C_INT_RESET_TORQUE), check=T.positive),
+    T.Endpoint("axis*.motor.config.acim_autoflux_attack_gain", T.C(L.C_INT_RESET_TORQUE), check=T.positive),
 )
 
 
@@ -191,10 +191,10 @@ def test_a_new_row_appears_in_the_tree_and_on_the_wire(monkeypatch):
     assert value == float(sim.st.AS[0, 1, L.S_IBUS_MOTOR]) and type(value) is float
     assert sim.transactions == t0 + 1
     assert "current_control" in dir(sim.axis1.motor) and "Ibus" not in dir(sim.axis1.motor.current_control)
-    sim.axis0.controller.config.vel_ramp_rate = 3
+    sim.axis0.motor.config.acim_autoflux_attack_gain = 3
     assert sim.st.C[0, 0, L.C_INT_RESET_TORQUE] == 3.0
-    with pytest.raises(ValueError, match="odrv.axis0.controller.config.vel_ramp_rate must be positive"):
-        sim.axis0.controller.config.vel_ramp_rate = -1.0
+    with pytest.raises(ValueError, match="odrv.axis0.motor.config.acim_autoflux_attack_gain must be positive"):
+        sim.axis0.motor.config.acim_autoflux_attack_gain = -1.0
     with pytest.raises(AttributeError, match="read-only"):
         sim.axis0.motor.I_bus = 1.0
     # the wire
@@ -204,14 +204,14 @@ def test_a_new_row_appears_in_the_tree_and_on_the_wire(monkeypatch):
         model = device_of(odrv)
         cov = F.endpoint_coverage(model)
         assert "axis1.motor.I_bus" in cov["model"]
-        assert "axis1.controller.config.vel_ramp_rate" in cov["model"]
+        assert "axis1.motor.config.acim_autoflux_attack_gain" in cov["model"]
         t0 = model.transactions
         assert odrv.axis1.motor.I_bus == float(model.st.AS[0, 1, L.S_IBUS_MOTOR])
         assert model.transactions == t0 + 1     # one transaction
-        odrv.axis1.controller.config.vel_ramp_rate = 2.5
+        odrv.axis1.motor.config.acim_autoflux_attack_gain = 2.5
         assert model.st.C[0, 1, L.C_INT_RESET_TORQUE] == 2.5
-        assert odrv.axis1.controller.config.vel_ramp_rate == 2.5
+        assert odrv.axis1.motor.config.acim_autoflux_attack_gain == 2.5
         with pytest.raises(ValueError, match="must be positive"):
-            odrv.axis1.controller.config.vel_ramp_rate = 0.0
+            odrv.axis1.motor.config.acim_autoflux_attack_gain = 0.0
     finally:
         forget(serial)

@@ -118,6 +118,8 @@ def test_save_configuration_refuses_while_armed_then_reboots(odrv):
     assert odrv.save_configuration() is False
     odrv.axis0.requested_state = V.AXIS_STATE_IDLE
     odrv.sleep(0.002)
+    odrv.axis0.encoder.set_linear_count(5000)          # encoder.cpp:141-154: far from 0
+    odrv.axis1.encoder.set_linear_count(-7000)
     before = [odrv.axis0.encoder.shadow_count, odrv.axis1.encoder.shadow_count]
     with pytest.raises(V.DeviceLostError):
         odrv.save_configuration()
@@ -133,7 +135,7 @@ def test_save_configuration_refuses_while_armed_then_reboots(odrv):
     assert odrv.axis1.motor.is_calibrated                            # ... unless pre_calibrated
     assert not odrv.axis0.encoder.is_ready and not odrv.axis1.encoder.is_ready
     after = [odrv.axis0.encoder.shadow_count, odrv.axis1.encoder.shadow_count]
-    assert max(map(abs, after)) < 50 and max(map(abs, before)) > 1000  # counts restart at 0
+    assert max(map(abs, after)) < 200 and min(map(abs, before)) > 4000  # counts restart at 0
     assert odrv.axis0.current_state == V.AXIS_STATE_IDLE and odrv.axis0.error == 0
     # a pre-calibrated motor with an encoder that is not ready: 0.5.6 closes the loop without
     # checking the encoder (axis.cpp:575), the encoder gives no phase (encoder.cpp:836-839)
@@ -208,13 +210,16 @@ def test_invalid_state_is_cleared_by_a_new_request():
 
 # -- rows 4, 5: calibration as motion, the count re-reference ---------------------------
 
-def test_calibration_swings_the_leg_and_re_references_the_counts():
+def test_calibration_swings_the_leg_and_keeps_the_counts_in_the_boot_frame():
     """encoder.hpp:22-23 (16 pi rad at 4 pi rad/s: 8/11 motor turn, 87 deg of joint),
-    encoder.cpp:329,378-447 (1 s lock, forward and back), encoder.cpp:344 (shadow_count :=
-    count_in_cpr), axis.cpp:472-479 (states 4 -> 7 -> 1)."""
+    encoder.cpp:329,378-447 (1 s lock, forward and back), axis.cpp:472-479 (states 4 -> 7 ->
+    1). encoder.cpp:344 sets shadow_count := count_in_cpr, but the incremental encoder's
+    next update (encoder.cpp:480,657-662,762) adds the int16 difference to the timer's
+    count, which never moved: the counts stay in the boot frame (no whole-turn shift)."""
     odrv = _device(seed=5)
     start = np.degrees(odrv.st.X[0, [0, 2]]).copy()
     assert abs(odrv.axis0.encoder.shadow_count) <= 2 and abs(odrv.axis1.encoder.shadow_count) <= 2
+    boot_turns = [float(odrv.twin.encoder_turns(odrv.st, odrv.twin.axes.joint_of_axis(a))[0]) for a in (0, 1)]
     for a in (odrv.axis0, odrv.axis1):
         a.requested_state = V.AXIS_STATE_FULL_CALIBRATION_SEQUENCE
     swing, states, gaps = 0.0, set(), []
@@ -229,9 +234,26 @@ def test_calibration_swings_the_leg_and_re_references_the_counts():
     assert swing == pytest.approx(expected, abs=6.0)
     assert max(gaps) - min(gaps) < 15.0          # both links swung together: the stop stays closed
     assert odrv.axis0.encoder.is_ready and odrv.axis0.error == 0
-    # the count was wrapped into [0, cpr) at the start of the offset calibration
-    counts = [odrv.axis0.encoder.shadow_count, odrv.axis1.encoder.shadow_count]
-    assert any(c > 4000 // 2 for c in counts)   # a count just below 0 became one just below cpr
+    # the counts are the rotor's travel since boot, whatever count_in_cpr was
+    for a, ax in enumerate((odrv.axis0, odrv.axis1)):
+        turns = float(odrv.twin.encoder_turns(odrv.st, odrv.twin.axes.joint_of_axis(a))[0])
+        assert ax.encoder.shadow_count == pytest.approx((turns - boot_turns[a]) * 4000, abs=3)
+        assert abs(ax.encoder.shadow_count) < 4000 // 2          # near the start: no turn added
+        assert ax.encoder.count_in_cpr == ax.encoder.shadow_count % 4000
+
+
+def test_zeroing_after_calibration_gives_the_rest_pose():
+    """Whatever frame the counts are in, the zeroing step (read pos_estimate at rest) makes
+    the joint angles the rest pose's, on both firmwares."""
+    for seed, firmware in ((8, "0.5.6"), (9, "0.5.1")):
+        dev = lg.connect("virtual", seed=seed, firmware=firmware)
+        lg.configure(dev)
+        lg.calibrate(dev)
+        q_true = dev.sim.st.X[0, [0, 2]]
+        a1, a2 = dev.axes.axis_of_joint
+        q = [float(dev.axes.counts_to_joint(dev.counts(a1), 0)), float(dev.axes.counts_to_joint(dev.counts(a2), 1))]
+        # the leg rests within its friction dead band of where it rested at zeroing
+        assert np.degrees(np.abs(np.array(q) - q_true)).max() < 1.5, firmware
 
 
 def test_a_blocked_scan_fails_the_cpr_check(odrv):
@@ -657,19 +679,27 @@ def test_erase_configuration_resets_to_the_firmwares_defaults_and_reboots():
 def test_motor_calibration_measures_r_and_l_and_the_gains_follow():
     """motor.cpp:416-463: R from the resistance law's integrator at calibration_current, L
     from the current ripple of an alternating test voltage; motor.cpp:297-302 and
-    motor.hpp:58-60: p_gain = bandwidth * L, i_gain = p_gain * R / L, also after a write."""
+    motor.hpp:58-60: p_gain = bandwidth * L, i_gain = p_gain * R / L, also after a write;
+    the kernel's current PI runs on the measured or written values (C_PHASE_R, C_PHASE_L),
+    not on the motor's own."""
     odrv = _device()
     _calibrate(odrv, (0,))
     m = odrv.twin.motor
     ax = odrv.axis0
     assert ax.motor.config.phase_resistance == pytest.approx(m.phase_resistance, rel=0.01)
-    assert ax.motor.config.phase_inductance == pytest.approx(m.La, rel=0.02)
+    assert ax.motor.config.phase_inductance == pytest.approx(m.phase_inductance, rel=0.02)
+    assert ax.motor.config.phase_resistance != m.phase_resistance        # a measurement, with its noise
+    assert odrv.st.C[0, 0, L.C_PHASE_R] == ax.motor.config.phase_resistance
+    assert odrv.st.C[0, 0, L.C_PHASE_L] == ax.motor.config.phase_inductance
     bw = ax.motor.config.current_control_bandwidth
     assert ax.motor.current_control.p_gain == pytest.approx(bw * ax.motor.config.phase_inductance, rel=1e-5)
     assert ax.motor.current_control.i_gain == pytest.approx(
         bw * ax.motor.config.phase_resistance, rel=1e-5)
-    ax.motor.config.phase_inductance = 2 * m.La
-    assert ax.motor.current_control.p_gain == pytest.approx(bw * 2 * m.La, rel=1e-5)
+    ax.motor.config.phase_inductance = 1.2 * m.phase_inductance
+    assert ax.motor.current_control.p_gain == pytest.approx(bw * 1.2 * m.phase_inductance, rel=1e-5)
+    assert odrv.st.C[0, 0, L.C_PHASE_L] == 1.2 * m.phase_inductance
+    ax.motor.config.phase_resistance = 1.1 * m.phase_resistance
+    assert odrv.st.C[0, 0, L.C_PHASE_R] == 1.1 * m.phase_resistance
     # a fresh motor: R = L = 0 give i_gain = 0 * 0/0, NaN as in float32 (motor.cpp:300)
     assert math.isnan(odrv.axis1.motor.current_control.i_gain)
 

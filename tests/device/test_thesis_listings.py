@@ -36,6 +36,10 @@ odrive = pytest.importorskip("odrive")
 
 from leglib.design.gainmap import GainMap  # noqa: E402
 
+AXIS_ERROR_CONTROLLER_FAILED = 0x200          # odrive-interface.yaml (fw-v0.5.6) enums
+CONTROLLER_ERROR_OVERSPEED = 0x1
+MOTOR_ERROR_UNKNOWN_TORQUE = 0x10000000
+
 LISTING_7_1 = """\
 odrv0.axis0.motor.config.current_lim = 10.0
 odrv0.axis1.motor.config.current_lim = 10.0
@@ -378,18 +382,18 @@ def test_listing_71_save_reboots_on_056(thesis_odrive):
         ns["odrv0"].axis0.motor.config.current_lim
 
 
-def _configured_and_calibrated(thesis_odrive, seed):
+def _configured_and_calibrated(thesis_odrive, seed, firmware="0.5.6"):
     """Listing 7.1, then Listing 7.2's calibration at the console; returns the console, its
     device in real time from then on. The console session and the wait for the calibration
     (about 20 s of the device's time) run on the device's own clock: nothing in them reads
     the host's clock, and the scripts that follow find the device in real time."""
-    thesis_odrive(seed, realtime=False)
+    thesis_odrive(seed, firmware, realtime=False)
     ns = odrivetool_console()
     run_console(LISTING_7_1, ns)                  # 0.5.6 may reset here: find it again
     ns = odrivetool_console()
     assert run_console(LISTING_7_2_CALIBRATION, ns) == []
     wait_at_console(ns)
-    thesis_odrive(seed)                           # find_any(realtime=True) from here on,
+    thesis_odrive(seed, firmware)                 # find_any(realtime=True) from here on,
     ns["odrv0"] = odrive.find_any()               # which paces the device it finds again
     assert device_of(ns["odrv0"]).realtime
     return ns
@@ -423,19 +427,11 @@ def test_listing_72_calibration_then_velocity(thesis_odrive):
     assert odrv0.axis0.current_state == 1 and odrv0.axis1.current_state == 1
 
 
-@pytest.mark.slow
-def test_listing_74_steps_and_files(thesis_odrive, tmp_path, monkeypatch):
-    """Listing 7.4 as a script after 7.1 and 7.2's calibration, grid shortened to 2 points.
-
-    Each 0.4-turn motor step moves the joint about 48 deg (0.4 turn through the 1:3 belt),
-    axis1 up and axis0 down as the script's offsets +-0.4 ask (the position loop leaves a
-    small offset against gravity and friction, smaller at the higher pos_gain). The files
-    have the thesis's name format and no sidecar, and load with ``read_measurement``
-    (angles relative to the start) and into ``GainMap.from_measurements``. The script
-    leaves both axes IDLE (requested_state consumed, fw-v0.5.6 axis.cpp:443-488).
-    """
+def _run_listing_74(thesis_odrive, tmp_path, monkeypatch, seed, firmware):
+    """Listing 7.4 as a script after 7.1 and 7.2's calibration, grid shortened to 2 points:
+    {pos_gain: (late mean of segment 1, of segment 4) [deg]} from its files, and the board."""
     monkeypatch.chdir(tmp_path)
-    _configured_and_calibrated(thesis_odrive, 74)
+    _configured_and_calibrated(thesis_odrive, seed, firmware)
 
     exec(compile(LISTING_7_4, "listing_7_4.py", "exec"), {"__name__": "__main__"})
 
@@ -452,15 +448,55 @@ def test_listing_74_steps_and_files(thesis_odrive, tmp_path, monkeypatch):
         assert m.angle1[0] == 0.0 and m.angle2[0] == 0.0
         late = m.t > m.t[-1] - 0.3                # the settled end of the response
         steps[m.gains[0]] = (np.mean(m.angle1[late]), np.mean(m.angle2[late]))
+    gm = GainMap.from_measurements(tmp_path)
+    assert gm.status.size == 2
+    odrv0 = odrive.find_any()
+    # the script leaves both axes IDLE (requested_state consumed, fw-v0.5.6 axis.cpp:443-488)
+    assert odrv0.axis0.current_state == 1 and odrv0.axis1.current_state == 1
+    assert math.isfinite(odrv0.vbus_voltage)
+    return steps, odrv0
+
+
+@pytest.mark.slow
+def test_listing_74_on_051_steps_at_every_point(thesis_odrive, tmp_path, monkeypatch):
+    """Listing 7.4 as printed on fw-v0.5.1: its controller runs only in closed loop
+    (fw-v0.5.1 axis.cpp:344-355), so the leg falling back after each step while IDLE (faster
+    than Listing 7.1's vel_limit 2.0 x tolerance 1.2) flags nothing, and every point steps.
+
+    Each 0.4-turn motor step moves the joint about 48 deg (0.4 turn through the 1:3 belt),
+    axis1 up and axis0 down as the script's offsets +-0.4 ask (the position loop leaves a
+    small offset against gravity and friction, smaller at the higher pos_gain). The files
+    have the thesis's name format and no sidecar, and load with ``read_measurement``
+    (angles relative to the start) and into ``GainMap.from_measurements``."""
+    steps, odrv0 = _run_listing_74(thesis_odrive, tmp_path, monkeypatch, 74, "0.5.1")
     for seg1, seg4 in steps.values():
         assert seg1 == pytest.approx(JOINT_STEP_DEG, rel=0.15)     # axis1: +0.4 turn
         assert seg4 == pytest.approx(-JOINT_STEP_DEG, rel=0.15)    # axis0: -0.4 turn
     assert abs(steps[50.0][0] - JOINT_STEP_DEG) < 0.1 * JOINT_STEP_DEG
-    gm = GainMap.from_measurements(tmp_path)
-    assert gm.status.size == 2
-    odrv0 = odrive.find_any()
-    assert odrv0.axis0.current_state == 1 and odrv0.axis1.current_state == 1
-    assert math.isfinite(odrv0.vbus_voltage)
+    assert odrv0.axis0.error == 0 and odrv0.axis1.error == 0
+
+
+@pytest.mark.slow
+def test_listing_74_as_printed_trips_overspeed_on_056(thesis_odrive, tmp_path, monkeypatch):
+    """Listing 7.4 as printed on fw-v0.5.6, as on a real board: the main loop updates the
+    controller every tick in every state (main.cpp:438-446), and once the first closed loop
+    has connected its inputs to the encoder (axis.cpp:270-285) the overspeed check
+    (controller.cpp:331-341) runs while IDLE too. After the first point the script idles
+    the motors and the leg falls back faster than Listing 7.1's vel_limit 2.0 x
+    vel_limit_tolerance 1.2 = 2.4 turn/s: OVERSPEED, the axis's CONTROLLER_FAILED, and the
+    motor without a torque (motor.cpp:515-518). The second point's closed-loop request
+    then ends at once (axis.cpp:343-350: an axis with an error is disarmed): its file holds
+    a leg that did not move. (On fw-v0.5.1 both points step: the test above.)"""
+    steps, odrv0 = _run_listing_74(thesis_odrive, tmp_path, monkeypatch, 74, "0.5.6")
+    seg1, seg4 = steps[20.0]                       # the first point steps
+    assert seg1 == pytest.approx(JOINT_STEP_DEG, rel=0.15) and seg4 == pytest.approx(-JOINT_STEP_DEG, rel=0.15)
+    seg1, seg4 = steps[50.0]                       # the second does not move
+    assert abs(seg1) < 1.0 and abs(seg4) < 1.0
+    tripped = [ax for ax in (odrv0.axis0, odrv0.axis1) if ax.controller.error & CONTROLLER_ERROR_OVERSPEED]
+    assert tripped
+    for ax in tripped:
+        assert ax.error & AXIS_ERROR_CONTROLLER_FAILED
+        assert ax.motor.error & MOTOR_ERROR_UNKNOWN_TORQUE
 
 
 @pytest.mark.slow

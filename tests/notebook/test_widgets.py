@@ -35,24 +35,31 @@ def test_pole_panel_readout_follows_sliders(leg):
     assert "  " not in expected  # single spaces: the browser shows this string exactly
 
 
-def test_gain_panel_readout_follows_sliders(leg):
-    def device():
-        # a fresh board each time (a virtual board lives for the process under its seed: the
-        # second session would find the first's, the leg resting a count elsewhere)
-        forget(serial_for_seed(55))
-        dev = lg.connect("virtual", leg=leg, seed=55)
-        lg.configure(dev)
-        lg.calibrate(dev)
-        return dev
+def test_gain_panel_readout_follows_sliders(leg, monkeypatch):
+    """The slider runs a step with the new gains and shows exactly step_readout of it. (The
+    step is the panel's own, recorded: a second connection to the same virtual device is
+    not the same history, its leg having settled meanwhile, and the readout's last digit
+    can tell.)"""
+    steps = []
 
-    with device() as dev:
+    def recorded(*args, **kwargs):
+        steps.append(lg.step_response(*args, **kwargs))
+        return steps[-1]
+    monkeypatch.setattr(widgets, "step_response", recorded)
+    # a fresh board (a virtual board lives for the process under its seed: another test's
+    # session would have left it elsewhere)
+    forget(serial_for_seed(55))
+    dev = lg.connect("virtual", leg=leg, seed=55)
+    lg.configure(dev)
+    lg.calibrate(dev)
+    with dev:
         panel = widgets.gain_step_panel(dev)
         (s_pos, _s_vel, _s_int), readout = panel.children[0].children, panel.children[1]
         s_pos.value = 40.0
         shown = readout.value
-    with device() as ref:  # the same device history, replayed without the panel
-        lg.step_response(ref, 50.0, 0.046, 0.001)
-        expected = widgets.step_readout(lg.step_response(ref, 40.0, 0.046, 0.001), leg=ref.leg)
+    assert [s.gains for s in steps] == [(50.0, 0.046, 0.001), (40.0, 0.046, 0.001)]
+    assert panel.last_step is steps[-1]
+    expected = widgets.step_readout(steps[-1], leg=dev.leg)
     assert expected.startswith("zeta = ") and shown == _readout_html(expected)
     assert "at the foot m = " in expected and "N/m" in expected   # eqs. 6.1/6.3
 

@@ -186,10 +186,10 @@ class BoardMixin:
             self._board_events_051()
 
     def _vbus_trip_check(self, vbus: float):
-        """main.cpp:300-305 as the kernel's _board_checks does it, at the host's step: the
-        kernel's vectorized path (a sweep block, leglib/twin/vector.py) has no board checks,
-        so the trip is checked here too (exact while the bus carries no current; under load
-        the reference path checks every tick)."""
+        """main.cpp:300-305 as the kernel's _board_checks does it, at the host's step: a
+        trip level written between two runs trips here at once (the kernel checks every
+        tick of a run: a board that checks its bus never takes the vectorized path, which
+        has no board checks; leglib/twin/vector.py)."""
         st = self.st
         if not st.C[0, 0, L.C_VBUS_CHECKS] > 0.0:
             return

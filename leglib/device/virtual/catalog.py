@@ -122,43 +122,8 @@ RULES: tuple[Rule, ...] = (
     Rule(r"axis\*\.controller\.start_anticogging_calibration", "refuse",
          "the anticogging calibration steps the rotor through whole turns in position control "
          "(controller.cpp:63-84): the leg cannot turn freely (hard stops)"),
-    Rule(r"axis\*\.controller\.config\.(axis_to_mirror|mirror_ratio|torque_mirror_ratio)", "store",
-         "read only in input mode MIRROR"),
-    Rule(r"axis\*\.controller\.config\.(vel_ramp_rate|torque_ramp_rate)", "store",
-         "read only in input modes VEL_RAMP and TORQUE_RAMP"),
-    Rule(r"axis\*\.controller\.(autotuning\..*|autotuning_phase)", "store", "read only in input mode TUNING"),
     Rule(r"axis\*\.controller\.config\.homing_speed", "store", "read only by homing, which fails without an endstop"),
-    Rule(r"axis\*\.controller\.config\.steps_per_circular_range", "store",
-         "acts only with the step/dir interface, which the model refuses (enable_step_dir)"),
-    Rule(r"axis\*\.controller\.config\.circular_setpoint_range", "store",
-         "the range of pos_circular (computed) and of circular setpoints"),
-    Rule(r"axis\*\.controller\.config\.circular_setpoints", "only",
-         "circular setpoints (controller.cpp:211-216,296-300) are not modelled"),
-    Rule(r"axis\*\.controller\.config\.enable_gain_scheduling", "only",
-         "gain scheduling near the setpoint (controller.cpp:356-360) is not modelled"),
-    Rule(r"axis\*\.controller\.config\.gain_scheduling_width", "store",
-         "acts only with gain scheduling, which the model refuses"),
-    Rule(r"axis\*\.controller\.config\.(enable_vel_limit|enable_overspeed_error|enable_torque_mode_vel_limit|"
-         r"enable_current_mode_vel_limit)", "only",
-         "the twin's controller always limits the velocity and checks overspeed (controller.cpp:331-341,372-394)"),
-    Rule(r"axis\*\.controller\.config\.inertia", "only",
-         "the inertia feed-forward of the ramped inputs (controller.cpp:196,250) is not modelled"),
-    Rule(r"axis\*\.controller\.config\.load_encoder_axis", "only",
-         "each axis runs on its own encoder (main.cpp:133); another axis's encoder is not modelled"),
-    Rule(r"axis\*\.controller\.config\.(spinout_mechanical_power_threshold|spinout_electrical_power_threshold)", "only",
-         "the spinout check (controller.cpp:438-441) never fires on the twin's ideal commutation; "
-         "other thresholds are not modelled"),
-    Rule(r"axis\*\.controller\.config\.(electrical_power_bandwidth|mechanical_power_bandwidth)", "only",
-         "the power estimates are read unfiltered (controller.cpp:431-432)"),
-    Rule(r"axis\*\.controller\.(electrical_power|mechanical_power)", "read", method="_r_power"),
     Rule(r"axis\*\.controller\.last_error_time", "read", method="_r_last_error_time", args=("controller",)),
-    Rule(r"axis\*\.controller\.torque_setpoint", "read", method="_r_torque_setpoint"),
-    Rule(r"axis\*\.controller\.move_incremental", "refuse",
-         "the incremental move (controller.cpp:40-47) is not modelled"),
-    Rule(r"axis\*\.encoder\.set_linear_count", "refuse",
-         "setting the linear count (encoder.cpp:141-150) is not modelled"),
-    Rule(r"axis\*\.motor\.config\.torque_lim", "only",
-         "the torque limit (motor.cpp:385-393) is not modelled"),
     # -- the encoder
     Rule(r"axis\*\.encoder\.config\.mode", "only",
          "the leg's AS5047D boards are wired through ABI: the incremental mode (0); other modes read other pins"),
@@ -170,7 +135,7 @@ RULES: tuple[Rule, ...] = (
          "written by the offset calibration; a pre-calibrated encoder uses it after its index is found"),
     Rule(r"axis\*\.encoder\.config\.(index_offset|use_index_offset|find_idx_on_lockin_only|"
          r"idx_search_unidirectional|zero_count_on_find_idx)", "store", "read by the index search, which the model runs"),
-    Rule(r"axis\*\.encoder\.(pos_estimate_counts|vel_estimate_counts|pos_cpr_counts|pos_circular|pos_cpr|"
+    Rule(r"axis\*\.encoder\.(pos_estimate_counts|vel_estimate_counts|pos_cpr_counts|pos_cpr|"
          r"delta_pos_cpr_counts|interpolation|phase|index_found|calib_scan_response)", "read",
          method="_r_encoder"),
     Rule(r"axis\*\.encoder\.(pos_abs|spi_error_rate)", "store", _NOT_ABS),
@@ -185,11 +150,8 @@ RULES: tuple[Rule, ...] = (
     Rule(r"axis\*\.motor\.current_control\.(acim_rotor_flux|async_phase_offset)", "store", _ACIM),
     Rule(r"axis\*\.motor\.current_control\.async_phase_vel", "const", _ACIM, value=0.0),
     # -- the motor
-    Rule(r"axis\*\.motor\.config\.(I_bus_hard_min|I_bus_hard_max|I_leak_max|current_lim_margin|requested_current_range)", "only",
-         "the twin checks the current against current_lim plus the default margin; other limits "
-         "and current-sense ranges are not modelled (motor.cpp:316-332,633-642)"),
-    Rule(r"axis\*\.motor\.config\.(R_wL_FF_enable|bEMF_FF_enable)", "only",
-         "the current loop's feed-forward terms (foc.cpp:128-137) are not modelled"),
+    Rule(r"axis\*\.motor\.config\.I_leak_max", "store",
+         "declared (motor.hpp:48) but read by no code of the firmware"),
     Rule(r"axis\*\.motor\.config\.dc_calib_tau", "store",
          "the current sensors' offset calibration filter: the twin's sensors have no offset to calibrate"),
     Rule(r"axis\*\.motor\.config\.(inverter_temp_limit_lower|inverter_temp_limit_upper)", "store",
@@ -203,8 +165,9 @@ RULES: tuple[Rule, ...] = (
          "rescale the measured currents (not modelled)"),
     Rule(r"axis\*\.motor\.current_control\.I_measured_report_filter_k", "only",
          "the reported currents are not filtered (the default 1.0)"),
-    Rule(r"axis\*\.motor\.current_control\.(v_current_control_integral_d|v_current_control_integral_q)", "only",
-         "the current controller's integrator state is not modelled (it reads the steady-state voltage)",
+    Rule(r"axis\*\.motor\.current_control\.v_current_control_integral_d", "only",
+         "the current controller's d axis is not modelled (Id held at 0: its integrator reads the steady-state "
+         "voltage)",
          method="_r_motor"),
     Rule(r"axis\*\.motor\.current_control\.(Ibus|I_measured_report_filter_k)", "read", method="_r_current_control"),
     Rule(r"axis\*\.motor\.(current_control\.\w+|current_meas_ph[ABC]|I_bus|effective_current_lim|"
@@ -292,6 +255,12 @@ def _table_entries(firmware: str) -> dict[str, dict]:
 
 
 @functools.lru_cache(maxsize=None)
+def table_types(firmware: str) -> dict[str, str]:
+    """{generic path: the table's type} of the firmware's endpoints."""
+    return {generic: entry["type"] for generic, entry in _table_entries(firmware).items()}
+
+
+@functools.lru_cache(maxsize=None)
 def _filled(rows: tuple, firmware: str) -> tuple[Endpoint, ...]:
     covered = {_generic(path) for path in model_paths(rows, firmware)}
     out = []
@@ -368,4 +337,4 @@ def disposition(firmware: str = "0.5.6") -> dict[str, list[str]]:
     return out
 
 
-__all__ = ["RULES", "Rule", "UnmodeledError", "disposition", "fill", "row_for", "rule_for"]
+__all__ = ["RULES", "Rule", "UnmodeledError", "disposition", "fill", "row_for", "rule_for", "table_types"]

@@ -20,8 +20,9 @@ What the firmware does and this device does too (file:line of fw-v0.5.6 unless m
   in position control (axis.cpp:290-291, controller.cpp:115-128).
 - Calibration is motion: motor calibration locks the rotor at ``calibration_current``
   (3 s resistance, then 1.25 s inductance measurement; motor.cpp:416-423,457-463), then
-  the encoder offset calibration re-references the counts (``shadow_count :=
-  count_in_cpr``, encoder.cpp:344), locks 1 s, scans 16*pi electrical rad forward at
+  the encoder offset calibration (its ``shadow_count := count_in_cpr``, encoder.cpp:344,
+  is undone by the incremental encoder's next update, encoder.cpp:480,657-662,762: the
+  counts stay in the boot frame) locks 1 s, scans 16*pi electrical rad forward at
   4*pi rad/s and back (encoder.cpp:378-447, encoder.hpp:22-23) with the leg and its stop
   in the loop, and checks the scan against CPR and pole pairs to 2 % (encoder.cpp:425-433).
 - The watchdog counts down every tick while enabled, in every state, and is only reloaded
@@ -38,6 +39,10 @@ What the firmware does and this device does too (file:line of fw-v0.5.6 unless m
   ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT on ``odrv.error`` (low_level.cpp:320-376,
   main.cpp:313-320; on 0.5.1 as a motor error, fw-v0.5.1 low_level.cpp:620-668).
 - Any axis error disarms and idles the axis (main.cpp:413-420, axis.cpp:343-350).
+- The controller updates every tick in every state on 0.5.6 (main.cpp:438-446), on
+  estimates connected at the first closed loop (axis.cpp:270-285): its overspeed check
+  trips while IDLE too; on 0.5.1 it runs in closed loop only. Its settings and the current
+  loop act in the kernel (:mod:`leglib.twin.kernel`; tests/device/test_firmware_control.py).
 
 Extras the real device does not have (used through ``Device.sim`` by
 :mod:`leglib.experiments`): ``sleep(s)``, ``time``, ``twin``, ``step_batch``, ``reboot()``,
@@ -54,12 +59,30 @@ import numpy as np
 from ...errors import DeviceLostError
 from ...params import OdriveConfig, PlantParams
 from ...twin import layout as L
-from ...twin.host import Twin
+from ...twin.host import Twin, controller_defaults, max_measurable_current
+from ...twin.stages import fmodf_pos
 from . import catalog, transport
 from .board import BATTERY_RESISTANCE, BATTERY_VOLTAGE, BoardMixin
 from .procedures import THREAD_START_AFTER_RESET, AxisThread
 from .readings import AxisReadings
-from .tree import Attr, Board, C, Call, Const, Endpoint, Err, Get, I, Key, S, _Node, build_tree, honoured
+from .tree import (
+    Attr,
+    Board,
+    C,
+    Call,
+    Const,
+    Endpoint,
+    Err,
+    Get,
+    I,
+    Key,
+    S,
+    UnmodeledError,
+    _Node,
+    build_tree,
+    c_value,
+    honoured,
+)
 
 FIRMWARES = ("0.5.1", "0.5.6")
 
@@ -79,10 +102,10 @@ MOTOR_ERROR_BRAKE_RESISTOR_DISARMED = 0x800000
 ENCODER_ERROR_CPR_POLEPAIRS_MISMATCH = 0x2
 ENCODER_ERROR_NO_RESPONSE = 0x4
 ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT = L.ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT
-CONTROL_MODES = (1, 2, 3)  # torque, velocity, position
-INPUT_MODE_INACTIVE, INPUT_MODE_PASSTHROUGH = 0, 1
-INPUT_MODE_POS_FILTER, INPUT_MODE_TRAP_TRAJ = 3, 5
-INPUT_MODES = (INPUT_MODE_INACTIVE, INPUT_MODE_PASSTHROUGH, INPUT_MODE_POS_FILTER, INPUT_MODE_TRAP_TRAJ)
+CONTROL_MODES = (0, 1, 2, 3)  # voltage (the controller treats it as torque), torque, velocity, position
+INPUT_MODE_INACTIVE, INPUT_MODE_PASSTHROUGH, INPUT_MODE_VEL_RAMP = 0, 1, 2
+INPUT_MODE_POS_FILTER, INPUT_MODE_TRAP_TRAJ, INPUT_MODE_TORQUE_RAMP = 3, 5, 6
+INPUT_MODE_MIRROR, INPUT_MODE_TUNING = 7, 8
 
 
 # firmware timings (fw-v0.5.6)
@@ -113,13 +136,15 @@ BOOT_TIME = 1.5
 
 
 # configuration kept per axis in python (the rest lives in the kernel's C array)
-_AXIS_CONFIG_KEYS = ("control_mode", "cpr", "pole_pairs", "motor_type", "motor_pre_calibrated",
+_AXIS_CONFIG_KEYS = ("cpr", "pole_pairs", "motor_type", "motor_pre_calibrated",
                      "phase_resistance", "phase_inductance", "calibration_current", "calib_range", "torque_constant",
                      "offset_measured",
                      "calib_scan_distance", "calib_scan_omega",
                      "encoder_pre_calibrated", "use_index", "direction", "trap_vel_limit",
                      "trap_accel_limit", "trap_decel_limit", "startup_motor_calibration",
-                     "startup_encoder_offset_calibration", "startup_closed_loop_control")
+                     "startup_encoder_offset_calibration", "startup_closed_loop_control",
+                     # the controller's and the motor's settings the kernel does not need
+                     "steps_per_circular_range", "requested_current_range")
 
 
 # slots of the kernel's C array that are volatile (inputs, leglib's abort bound, state)
@@ -162,7 +187,7 @@ ENDPOINTS = (
     Endpoint("axis*.controller.vel_setpoint", S(L.S_VEL_SP)),
     Endpoint("axis*.controller.trajectory_done", I(L.I_TRAJ_DONE), bool),
     Endpoint("axis*.controller.vel_integrator_torque", S(L.S_INTEGRATOR, writable=True)),
-    Endpoint("axis*.controller.config.control_mode", Key("control_mode"), int, setter="_set_control_mode"),
+    Endpoint("axis*.controller.config.control_mode", C(L.C_CONTROL_MODE), int, setter="_set_control_mode"),
     Endpoint("axis*.controller.config.input_mode", C(L.C_INPUT_MODE), int, setter="_set_input_mode"),
     Endpoint("axis*.controller.config.pos_gain", C(L.C_POS_GAIN)),
     Endpoint("axis*.controller.config.vel_gain", C(L.C_VEL_GAIN)),
@@ -178,7 +203,7 @@ ENDPOINTS = (
     Endpoint("axis*.motor.current_control.Iq_measured", S(L.S_IQ_MEAS), since="0.5.2"),
     # fw-v0.5.1 declares it writable: a write holds until the next measurement overwrites it
     Endpoint("axis*.motor.current_control.Iq_measured", S(L.S_IQ_MEAS, writable=True), until="0.5.1"),
-    Endpoint("axis*.motor.current_control.Iq_setpoint", S(L.S_IQ)),
+    Endpoint("axis*.motor.current_control.Iq_setpoint", S(L.S_IQ_SP)),
     Endpoint("axis*.motor.config.pole_pairs", Key("pole_pairs"), int),
     Endpoint("axis*.motor.config.torque_constant", Key("torque_constant"), setter="_set_torque_constant"),
     Endpoint("axis*.motor.config.motor_type", Key("motor_type"), int,
@@ -199,7 +224,7 @@ ENDPOINTS = (
     Endpoint("axis*.encoder.vel_estimate", S(L.S_VEL_EST)),
     Endpoint("axis*.encoder.shadow_count", I(L.I_COUNTS), int),
     Endpoint("axis*.encoder.count_in_cpr", Get("_count_in_cpr"), int),
-    Endpoint("axis*.encoder.config.cpr", Key("cpr"), int),
+    Endpoint("axis*.encoder.config.cpr", Key("cpr"), int, setter="_set_cpr"),
     Endpoint("axis*.encoder.config.bandwidth", C(L.C_ENCODER_BW)),
     Endpoint("axis*.encoder.config.direction", Key("direction"), int, since="0.5.2"),
     Endpoint("axis*.motor.config.direction", Key("direction"), int, until="0.5.1"),     # fw-v0.5.1 motor.hpp
@@ -239,6 +264,54 @@ ENDPOINTS = (
     Endpoint("save_configuration", Call("_save_configuration")),             # main.cpp:159-184
     Endpoint("reboot", Call("_reboot_call")),                                # main.cpp:194
     Endpoint("clear_errors", Call("_clear_errors"), since="0.5.2"),          # main.cpp:236-249
+    # the controller's and the motor's control settings, each acting in the kernel as the
+    # firmware's does (controller.cpp:143-450, motor.cpp:365-394,631-644; tests/device/
+    # test_firmware_control.py), or refused at the write where the leg cannot do it
+    Endpoint("axis*.controller.torque_setpoint", S(L.S_TQ_SP)),
+    Endpoint("axis*.controller.autotuning_phase", S(L.S_TUNE_PHASE, writable=True), since="0.5.3"),
+    Endpoint("axis*.controller.config.enable_vel_limit", C(L.C_EN_VEL_LIMIT), bool),
+    Endpoint("axis*.controller.config.enable_current_mode_vel_limit", C(L.C_EN_TQ_VEL_LIMIT), bool,
+             until="0.5.2"),
+    Endpoint("axis*.controller.config.enable_torque_mode_vel_limit", C(L.C_EN_TQ_VEL_LIMIT), bool,
+             since="0.5.3"),
+    Endpoint("axis*.controller.config.enable_overspeed_error", C(L.C_EN_OVERSPEED), bool),
+    Endpoint("axis*.controller.config.enable_gain_scheduling", C(L.C_EN_GAIN_SCHED), bool),
+    Endpoint("axis*.controller.config.gain_scheduling_width", C(L.C_GAIN_SCHED_WIDTH)),
+    Endpoint("axis*.controller.config.vel_ramp_rate", C(L.C_VEL_RAMP_RATE)),
+    Endpoint("axis*.controller.config.torque_ramp_rate", C(L.C_TORQUE_RAMP_RATE)),
+    Endpoint("axis*.controller.config.inertia", C(L.C_INERTIA)),
+    Endpoint("axis*.controller.config.circular_setpoints", C(L.C_CIRCULAR), bool),
+    Endpoint("axis*.controller.config.circular_setpoint_range", C(L.C_CIRC_RANGE),
+             setter="_set_circular_setpoint_range"),
+    Endpoint("axis*.controller.config.steps_per_circular_range", Key("steps_per_circular_range"), int,
+             setter="_set_steps_per_circular_range", since="0.5.2"),
+    Endpoint("axis*.controller.config.axis_to_mirror", C(L.C_MIRROR_AXIS), int, setter="_set_axis_to_mirror"),
+    Endpoint("axis*.controller.config.mirror_ratio", C(L.C_MIRROR_RATIO)),
+    Endpoint("axis*.controller.config.torque_mirror_ratio", C(L.C_TORQUE_MIRROR_RATIO), since="0.5.2"),
+    Endpoint("axis*.controller.config.load_encoder_axis", Get("_load_encoder_axis"), int,
+             setter="_set_load_encoder_axis"),
+    Endpoint("axis*.controller.autotuning.frequency", C(L.C_TUNE_FREQ), since="0.5.2"),
+    Endpoint("axis*.controller.autotuning.pos_amplitude", C(L.C_TUNE_POS_AMP), since="0.5.2"),
+    Endpoint("axis*.controller.autotuning.vel_amplitude", C(L.C_TUNE_VEL_AMP), since="0.5.2"),
+    Endpoint("axis*.controller.autotuning.torque_amplitude", C(L.C_TUNE_TQ_AMP), since="0.5.2"),
+    Endpoint("axis*.controller.move_incremental", Call("_move_incremental")),            # controller.cpp:40-48
+    Endpoint("axis*.controller.config.mechanical_power_bandwidth", C(L.C_MECH_BW), since="0.5.2"),
+    Endpoint("axis*.controller.config.electrical_power_bandwidth", C(L.C_ELEC_BW), since="0.5.2"),
+    Endpoint("axis*.controller.config.spinout_mechanical_power_threshold", C(L.C_SPIN_MECH), since="0.5.2"),
+    Endpoint("axis*.controller.config.spinout_electrical_power_threshold", C(L.C_SPIN_ELEC), since="0.5.2"),
+    Endpoint("axis*.controller.mechanical_power", S(L.S_MECH_P), since="0.5.2"),
+    Endpoint("axis*.controller.electrical_power", S(L.S_ELEC_P), since="0.5.2"),
+    Endpoint("axis*.motor.config.torque_lim", C(L.C_TORQUE_LIM)),
+    Endpoint("axis*.motor.config.current_lim_margin", C(L.C_CURRENT_LIM_MARGIN)),
+    Endpoint("axis*.motor.config.requested_current_range", Key("requested_current_range"),
+             setter="_set_requested_current_range"),
+    Endpoint("axis*.motor.config.bEMF_FF_enable", C(L.C_BEMF_FF), bool, since="0.5.2"),
+    Endpoint("axis*.motor.config.R_wL_FF_enable", C(L.C_RWL_FF), bool, since="0.5.2"),
+    Endpoint("axis*.motor.config.I_bus_hard_min", C(L.C_IBUS_MIN), since="0.5.2"),
+    Endpoint("axis*.motor.config.I_bus_hard_max", C(L.C_IBUS_MAX), since="0.5.2"),
+    Endpoint("axis*.motor.current_control.v_current_control_integral_q", S(L.S_V_INT, writable=True)),
+    Endpoint("axis*.encoder.set_linear_count", Call("_set_linear_count")),                 # encoder.cpp:141-154
+    Endpoint("axis*.encoder.pos_circular", Get("_pos_circular")),                          # encoder.cpp:806-809
 )
 
 
@@ -331,11 +404,16 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         C[0, 0, L.C_VBUS_R] = BATTERY_RESISTANCE
         C[0, 0, L.C_VBUS_CHECKS] = 1.0                      # main.cpp:300-305
         C[0, 0, L.C_REGEN_ERR_STYLE] = 0.0 if v056 else 1.0
+        controller_defaults(C[0], cpr=8192)                 # controller.hpp:25-56, encoder.hpp:27
+        C[0, :, L.C_PHASE_R] = 0.0                          # motor.hpp:22-23: not measured yet
+        C[0, :, L.C_PHASE_L] = 0.0
+        C[0, 0, L.C_FW_056] = 1.0 if v056 else 0.0
         self._board = {"enable_brake_resistor": not v056, "brake_resistance": 2.0}
         self._axis = []
         for a in range(2):
             self._axis.append({
-                "control_mode": 3, "cpr": 8192, "pole_pairs": 7, "motor_type": 0,
+                "steps_per_circular_range": 1024, "requested_current_range": 60.0,   # controller.hpp:38, motor.hpp:32
+                "cpr": 8192, "pole_pairs": 7, "motor_type": 0,
                 "motor_pre_calibrated": False, "encoder_pre_calibrated": False, "use_index": False,
                 "direction": 0, "trap_vel_limit": 2.0, "trap_accel_limit": 0.5, "trap_decel_limit": 0.5,
                 "startup_motor_calibration": False, "startup_encoder_offset_calibration": False,
@@ -366,6 +444,7 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         directly: a fresh board, no side effects)."""
         from .wire import firmware_defaults  # load time: the tables live with the wire (which imports this module)
         defaults = firmware_defaults(self.firmware)
+        types = None
         for row in self.endpoints:
             if not row.active(self.firmware) or row.function or ".config." not in f".{row.path}.":
                 continue
@@ -376,6 +455,10 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
                 _, set_ = row.store.bind(self, a, row.kind, where)
                 if set_ is not None:
                     value = hit["axes"][a] if ("axes" in hit and a is not None) else hit["value"]
+                    if row.kind is int:
+                        # C's conversion to the member's type (uint8 axis_to_mirror = -1 is 255)
+                        types = types if types is not None else catalog.table_types(self.firmware)
+                        value = c_value(types[row.path], value)
                     set_(row.kind(value))
 
     def _boot(self):
@@ -400,6 +483,11 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         st.AS[0, :, L.S_INTEGRATOR] = 0.0
         st.AS[0, :, L.S_IQ] = 0.0
         st.AS[0, :, L.S_IQ_MEAS] = 0.0
+        # the controller's state from scratch (controller.hpp:103-130; its estimate inputs
+        # unconnected until the first closed loop: AI zeroed above)
+        for slot in (L.S_POS_SP, L.S_VEL_SP, L.S_TQ_SP, L.S_TQ_OUT, L.S_TUNE_PHASE, L.S_POS_CIRC, L.S_MECH_P,
+                     L.S_ELEC_P, L.S_FOC_POWER, L.S_V_INT, L.S_V_PREV, L.S_IQ_SP):
+            st.AS[0, :, slot] = 0.0
         st.ABORT[...] = 0
         st.C[0, :, L.C_INPUT_POS] = 0.0
         st.C[0, :, L.C_INPUT_VEL] = 0.0
@@ -413,6 +501,9 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         self._sync_brake()
         for a, ax in enumerate(self._axis):
             self._set_torque_constant(a, ax["torque_constant"])
+            # the current controller's gains from the configured R and L (motor.cpp:297-302)
+            self._set_phase_resistance(a, ax["phase_resistance"])
+            self._set_phase_inductance(a, ax["phase_inductance"])
         for a, ax in enumerate(self._axis):
             ax.update({"motor_calibrated": bool(ax["motor_pre_calibrated"]),   # motor.cpp:306
                        # encoder.cpp:19-30: an incremental encoder is ready only after its
@@ -561,11 +652,12 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
                               for ax in self._axis)
             if calibrating == self.twin.payload_mounted:
                 self.twin.mount_payload(not calibrating)
-        # the trajectory's end drops the axis into position control (controller.cpp:255-262)
+        # motor.cpp:312-338: the IDLE loop sets the current sense up every iteration, with
+        # the requested_current_range written meanwhile (axis.cpp:437-440)
         st = self.st
         for a, ax in enumerate(self._axis):
-            if st.AI[0, a, L.I_MODE] == L.MODE_POSITION and ax["state"] == AXIS_STATE_CLOSED_LOOP_CONTROL:
-                ax["control_mode"] = 3
+            if ax["state"] == AXIS_STATE_IDLE and st.AI[0, a, L.I_MODE] == L.MODE_IDLE:
+                st.C[0, a, L.C_MAX_CURRENT] = max_measurable_current(ax["requested_current_range"])
 
     def _disarm(self, a):
         st = self.st
@@ -585,22 +677,29 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
 
     def _enter_closed_loop(self, a):
         """axis.cpp:577-578, 257-332: the closed loop's entry (its checks: procedures.py)."""
-        ax, st = self._axis[a], self.st
+        st = self.st
         self._feed(a)                                  # axis.cpp:577
         if not self._arm(a):
             return
-        # controller reset at arming (motor.cpp:202, controller.cpp:12-18)
+        # the controller's inputs connected to this axis's encoder (axis.cpp:270-285; the
+        # controller reads its own axis's encoder: load_encoder_axis)
+        st.AI[0, a, L.I_CONNECTED] = 1
+        # controller and current controller reset at arming (motor.cpp:202-206,
+        # controller.cpp:12-18, foc.cpp:47-53)
+        st.AS[0, a, [L.S_IQ, L.S_V_PREV, L.S_V_INT, L.S_FOC_POWER, L.S_MECH_P, L.S_ELEC_P]] = 0.0
         st.AS[0, a, L.S_VEL_SP] = 0.0
         st.AS[0, a, L.S_TQ_SP] = 0.0
         st.AS[0, a, L.S_INTEGRATOR] = 0.0
         st.AS[0, a, L.S_OSC:L.S_OSC + L.N_OSC] = 0.0
-        # axis.cpp:290-291: control_mode_updated, input_pos_updated
-        if ax["control_mode"] >= 3:
-            pe = float(st.AS[0, a, L.S_POS_EST])
-            st.AS[0, a, L.S_POS_SP] = pe
-            st.C[0, a, L.C_INPUT_POS] = pe
+        if self.firmware == "0.5.1":
+            # fw-v0.5.1 axis.cpp:319-338: setpoint and input from the estimate in every mode
+            est = self._position_estimate(a)
+            st.AS[0, a, L.S_POS_SP] = est
+            st.C[0, a, L.C_INPUT_POS] = est
+        else:
+            self._control_mode_updated(a)                 # axis.cpp:290-291
         self._plan_trajectory(a)
-        st.AI[0, a, L.I_MODE] = ax["control_mode"]
+        st.AI[0, a, L.I_MODE] = self._armed_mode(a)
 
     def _plan_trajectory(self, a):
         """controller.cpp:31-38 move_to_pos with trapTraj.cpp planTrapezoidal, from the
@@ -636,29 +735,145 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         st.AI[0, a, L.I_TRAJ_DONE] = 0
 
     # -- property setters with firmware side effects ------------------------------------
+    def _armed_mode(self, a: int) -> int:
+        """The kernel's armed mode for the configured control mode (VOLTAGE_CONTROL runs as
+        torque control: controller.cpp:374,388,408 compare with VELOCITY_CONTROL)."""
+        return max(L.MODE_TORQUE, min(int(self.st.C[0, a, L.C_CONTROL_MODE]), L.MODE_POSITION))
+
+    def _position_estimate(self, a: int) -> float:
+        """What the controller's position input gives now (controller.cpp:117-119): the
+        circular or the linear estimate once connected, 0 before (an unconnected input)."""
+        st = self.st
+        if not st.AI[0, a, L.I_CONNECTED]:
+            return 0.0
+        if st.C[0, a, L.C_CIRCULAR]:
+            return self._pos_circular(a)
+        return float(st.AS[0, a, L.S_POS_EST])
+
+    def _control_mode_updated(self, a: int) -> None:
+        """controller.cpp:115-128: in position control the setpoint and input_pos jump to
+        the estimate."""
+        if self.st.C[0, a, L.C_CONTROL_MODE] >= L.CONTROL_MODE_POSITION:
+            est = self._position_estimate(a)
+            self.st.AS[0, a, L.S_POS_SP] = est
+            self.st.C[0, a, L.C_INPUT_POS] = est
+
     def _set_control_mode(self, a: int, value: int):
         if value not in CONTROL_MODES:
-            raise ValueError(f"axis{a}.controller.config.control_mode: unsupported value {value}")
-        ax, st = self._axis[a], self.st
-        ax["control_mode"] = value
+            # the firmware stores any uint8 (its controller treats >= 3 as position control,
+            # controller.cpp:296); a value beyond the enum is refused here (stricter)
+            raise UnmodeledError(f"odrv.axis{a}.controller.config.control_mode: {value} is not a ControlMode of "
+                                 f"firmware {self.firmware} (0 voltage, 1 torque, 2 velocity, 3 position)")
+        st = self.st
+        st.C[0, a, L.C_CONTROL_MODE] = value
+        if self.firmware != "0.5.1":
+            # controller.hpp:62 set_control_mode -> control_mode_updated, in every state;
+            # fw-v0.5.1 has no setter: input_pos keeps its value (a closed loop switched to
+            # position control goes to the old input_pos)
+            self._control_mode_updated(a)
         if st.AI[0, a, L.I_MODE] not in (L.MODE_IDLE, L.MODE_CALIB):
-            # controller.cpp:115-128 control_mode_updated
-            if value >= 3:
-                pe = float(st.AS[0, a, L.S_POS_EST])
-                st.AS[0, a, L.S_POS_SP] = pe
-                st.C[0, a, L.C_INPUT_POS] = pe
-            st.AI[0, a, L.I_MODE] = value
+            st.AI[0, a, L.I_MODE] = self._armed_mode(a)
 
     def _set_input_mode(self, a: int, value: int):
-        if value not in INPUT_MODES:
-            raise ValueError(f"axis{a}.controller.config.input_mode: value {value} is not simulated "
-                             f"(supported: INACTIVE 0, PASSTHROUGH 1, POS_FILTER 3, TRAP_TRAJ 5)")
+        # the firmware stores any value of the uint8; one its controller does not know (MIX_
+        # CHANNELS, TUNING on 0.5.1, anything above 8) fails every update with
+        # INVALID_INPUT_MODE (controller.cpp:278-281), which the kernel does
+        if not 0 <= value <= 255:
+            raise ValueError(f"odrv.axis{a}.controller.config.input_mode: {value} does not fit its uint8")
         self.st.C[0, a, L.C_INPUT_MODE] = value
+
+    def _controller_runs(self, a: int) -> bool:
+        """Whether the controller updates now: every tick on 0.5.6 (main.cpp:438-446), in
+        closed loop only on 0.5.1 (fw-v0.5.1 axis.cpp:344-355)."""
+        return self.firmware != "0.5.1" or self.st.AI[0, a, L.I_MODE] not in (L.MODE_IDLE, L.MODE_CALIB)
 
     def _set_input_pos(self, a: int, value: float):
         self.st.C[0, a, L.C_INPUT_POS] = value
-        if self.st.AI[0, a, L.I_MODE] not in (L.MODE_IDLE, L.MODE_CALIB):
-            self._plan_trajectory(a)    # input_pos_updated: planned on the next tick (controller.cpp:236-239)
+        if self._controller_runs(a):
+            self._plan_trajectory(a)    # input_pos_updated: planned on the next tick (controller.cpp:245-249)
+
+    def _move_incremental(self, a: int, displacement: float, from_input_pos: bool = True):
+        """controller.cpp:40-48: input_pos moved by ``displacement`` [turn] from input_pos
+        or, with ``from_input_pos`` False, from pos_setpoint; then as an input_pos write."""
+        st = self.st
+        base = float(st.C[0, a, L.C_INPUT_POS]) if from_input_pos else float(st.AS[0, a, L.S_POS_SP])
+        self._set_input_pos(a, base + float(displacement))
+
+    def _set_linear_count(self, a: int, count: int):
+        """encoder.cpp:141-154: shadow_count, the PLL's position and the timer's count set to
+        ``count``; the velocity, count_in_cpr and the circular position are kept."""
+        st = self.st
+        count = int(count)
+        if not -2 ** 31 <= count < 2 ** 31:
+            raise ValueError(f"odrv.axis{a}.encoder.set_linear_count: {count} does not fit its int32")
+        shift = count - int(st.AI[0, a, L.I_COUNTS])
+        pe_old = float(st.AS[0, a, L.S_POS_EST])
+        pe_new = count / float(st.C[0, a, L.C_CPR])
+        st.C[0, a, L.C_COUNT_OFFSET] += shift
+        st.AI[0, a, L.I_COUNTS] = count
+        st.AS[0, a, L.S_COUNT_F] += shift
+        st.AS[0, a, L.S_POS_EST] = pe_new
+        st.AS[0, a, L.S_POS_CIRC] -= pe_new - pe_old     # pos_circular does not jump
+
+    def _set_cpr(self, a: int, value: int):
+        """encoder.config.cpr: the PLL works in counts (encoder.cpp:774-801), so its
+        estimate in turns rescales with the cpr it is divided by."""
+        if value <= 0:
+            # the firmware stores it; its estimate would be counts / 0 or of the wrong sign
+            # (encoder.cpp:800) and count_in_cpr a mod by it (encoder.cpp:757): refused
+            raise UnmodeledError(f"odrv.axis{a}.encoder.config.cpr = {value}: a cpr that is not positive divides the "
+                                 f"encoder's estimate by 0 or turns it (encoder.cpp:757,800); not modelled")
+        st, ax = self.st, self._axis[a]
+        ratio = float(st.C[0, a, L.C_CPR]) / value
+        pc = self._pos_circular(a)
+        st.AS[0, a, L.S_POS_EST] *= ratio
+        st.AS[0, a, L.S_VEL_EST] *= ratio
+        st.AS[0, a, L.S_POS_CIRC] = pc - float(st.AS[0, a, L.S_POS_EST])
+        st.C[0, a, L.C_CPR] = float(value)
+        ax["cpr"] = value
+
+    def _pos_circular(self, a: int) -> float:
+        """encoder.pos_circular (encoder.cpp:806-809): the position wrapped into
+        [0, circular_setpoint_range), kept by the kernel as an offset to pos_estimate."""
+        st = self.st
+        x = float(st.AS[0, a, L.S_POS_EST]) + float(st.AS[0, a, L.S_POS_CIRC])
+        return float(fmodf_pos(x, float(st.C[0, a, L.C_CIRC_RANGE])))
+
+    def _set_circular_setpoint_range(self, a: int, value: float):
+        if not math.isfinite(value):
+            # wrap_pm(x, inf) is x - 0 * inf, NaN (utils.hpp:123-130): every setpoint and
+            # pos_circular would turn NaN on the board; refused here (stricter). Zero and
+            # negative ranges the firmware wraps by as written: the kernel does too
+            raise UnmodeledError(f"odrv.axis{a}.controller.config.circular_setpoint_range must be a finite number "
+                                 f"of turns, got {value} (the firmware's wrap multiplies by it: utils.hpp:123-130)")
+        st = self.st
+        pc = self._pos_circular(a)    # pos_circular of the old range, then wrapped into the new one
+        st.C[0, a, L.C_CIRC_RANGE] = value
+        st.AS[0, a, L.S_POS_CIRC] = pc - float(st.AS[0, a, L.S_POS_EST])
+
+    def _set_steps_per_circular_range(self, a: int, value: int):
+        # controller.hpp:61: a value <= 0 is ignored; the steps only matter to step/dir input
+        if value > 0:
+            self._axis[a]["steps_per_circular_range"] = value
+
+    def _set_axis_to_mirror(self, a: int, value: int):
+        if not 0 <= value <= 255:
+            raise ValueError(f"odrv.axis{a}.controller.config.axis_to_mirror: {value} does not fit its uint8")
+        self.st.C[0, a, L.C_MIRROR_AXIS] = value
+
+    def _load_encoder_axis(self, a: int) -> int:
+        return a                       # load_configuration's default: the axis's own encoder
+
+    def _set_load_encoder_axis(self, a: int, value: int):
+        if value != a:
+            raise UnmodeledError(f"odrv.axis{a}.controller.config.load_encoder_axis = {value}: the twin's "
+                                 f"controller reads its own axis's encoder only (each motor of this leg has its "
+                                 f"encoder on its shaft); another axis's encoder (axis.cpp:276-280) or the "
+                                 f"sensorless estimator is not modelled")
+
+    def _set_requested_current_range(self, a: int, value: float):
+        # applied by the IDLE loop's motor.setup() (see _process_events)
+        self._axis[a]["requested_current_range"] = float(value)
 
     def _feed(self, a):
         # axis.cpp:165-168: reload with watchdog_timeout * control-loop frequency
@@ -826,6 +1041,8 @@ class VirtualODrive(BoardMixin, AxisReadings, AxisThread):
         last = np.atleast_2d(gains)[-1]
         for a in range(2):
             self.st.AI[0, a, L.I_MODE] = L.MODE_IDLE
+            self.st.AI[0, a, L.I_CONNECTED] = 1          # the steps' closed loops connected it
+            self.st.C[0, a, L.C_CONTROL_MODE] = L.CONTROL_MODE_POSITION
             self.st.C[0, a, [L.C_POS_GAIN, L.C_VEL_GAIN, L.C_VEL_INT_GAIN]] = last
             self._feed(a)
         return out

@@ -155,18 +155,21 @@ class AxisThread:
 
     def _gains_refusal(self, a: int) -> str | None:
         """The current controller's gains come from motor.config.phase_resistance and
-        phase_inductance (motor.cpp:297-302). The twin's current loop is the one tuned to
-        its motor: it holds for configured values within the accuracy the firmware's own
-        calibration test accepts (calibration_test.py:48-49: R to 20 %, L to 50 %)."""
+        phase_inductance (motor.cpp:297-302), and the kernel runs the firmware's q-axis PI
+        on them (C_PHASE_R, C_PHASE_L). Its d axis is held at 0: that holds while the gains
+        fit the motor, within the accuracy the firmware's own calibration test accepts
+        (calibration_test.py:48-49: R to 20 %, L to 50 %); further off, the d-axis current
+        and its coupling to q, which the board's loop would show, are not modelled."""
         ax, m = self._axis[a], self.twin.motor
         if not ax["motor_calibrated"]:
             return None          # the state is invalid anyway (axis.cpp:509-559)
         r, ind = ax["phase_resistance"], ax["phase_inductance"]
-        if abs(r / m.phase_resistance - 1.0) <= 0.2 and abs(ind / m.La - 1.0) <= 0.5:
+        if abs(r / m.phase_resistance - 1.0) <= 0.2 and abs(ind / m.phase_inductance - 1.0) <= 0.5:
             return None
         return (f"motor.config.phase_resistance = {r:.4g} ohm and phase_inductance = {ind:.4g} H set the "
-                f"current controller's gains; this motor has {m.phase_resistance:.4g} ohm and {m.La:.4g} H: a "
-                f"current loop tuned that far off is not modelled; run MOTOR_CALIBRATION")
+                f"current controller's gains; this motor has {m.phase_resistance:.4g} ohm and "
+                f"{m.phase_inductance:.4g} H: a current loop tuned that far off (its d axis) is not modelled; "
+                f"run MOTOR_CALIBRATION")
 
     def _commutation_refusal(self, a: int) -> str | None:
         """The twin's ideal commutation holds for a pre-calibrated encoder only if its
@@ -392,7 +395,9 @@ class AxisThread:
         # the integrator low-passes the current noise (a first-order loop, pole kI / R): the
         # voltage it ends on scatters by noise * sqrt(kI R dt / 2)
         sigma_v = noise * math.sqrt(R_MEASUREMENT_KI * R * CONTROL_PERIOD / 2.0)
-        ax["phase_resistance"] = float((v_final + sigma_v * self._cal_rng.standard_normal()) / test_current)
+        # motor.cpp:421-423: the measurement is phase_resistance, and with it the current
+        # controller's gains (motor.cpp:297-302: C_PHASE_R)
+        self._set_phase_resistance(a, float((v_final + sigma_v * self._cal_rng.standard_normal()) / test_current))
         # measure_phase_inductance: +-test voltage toggled every period, no net torque: the
         # rotor is free; L = V / (mean |dI| / dt) over 1.25 s (motor.cpp:88-134)
         st.C[0, a, L.C_CAL_CURRENT] = 0.0
@@ -400,10 +405,10 @@ class AxisThread:
         if not self._armed(a):
             return False
         n = int(L_MEASUREMENT_TIME / CONTROL_PERIOD)
-        step = max_voltage * CONTROL_PERIOD / m.La                 # |dI| per period [A]
+        step = max_voltage * CONTROL_PERIOD / m.phase_inductance   # |dI| per period [A]
         delta = n * step + math.sqrt(2.0 * n) * noise * self._cal_rng.standard_normal()
         L_meas = max_voltage / (delta / L_MEASUREMENT_TIME) if delta > 0 else math.inf
-        ax["phase_inductance"] = float(L_meas)
+        self._set_phase_inductance(a, float(L_meas))              # motor.cpp:478-479, 297-302
         self._disarm(a)
         if not (L_RANGE[0] <= L_meas <= L_RANGE[1]):
             st.AI[0, a, L.I_MOTOR_ERR] |= MOTOR_ERROR_PHASE_INDUCTANCE_OUT_OF_RANGE   # motor.cpp:481-483
@@ -419,19 +424,32 @@ class AxisThread:
 
     # -- encoder offset calibration (encoder.cpp:327-462; fw-v0.5.1 encoder.cpp:183-285) ---
     def _offset_calibration_frame(self, a: int):
-        """encoder.cpp:344: shadow_count := count_in_cpr (the count re-referenced into [0, cpr))."""
+        """encoder.cpp:344 sets shadow_count := count_in_cpr, but the next tick's incremental
+        update (encoder.cpp:480,657-662,762) adds the int16 difference between the timer's
+        count and that value: shadow_count is the timer's count again, in the boot frame, up
+        to a multiple of 2^16 when the count is that far from [0, cpr). The PLL's estimate is
+        not touched (it follows such a jump as it would on the board)."""
         ax, st = self._axis[a], self.st
         cpr = ax["cpr"]
         count = int(st.AI[0, a, L.I_COUNTS])
-        shift = (count % cpr) - count if cpr else 0
-        self._shift_counts(a, shift)
+        in_cpr = count % cpr if cpr else count      # a cpr of 0: mod reads the count (see _count_in_cpr)
+        shift = in_cpr + ((count - in_cpr + 0x8000) % 0x10000 - 0x8000) - count
+        if shift:
+            st.C[0, a, L.C_COUNT_OFFSET] += shift
+            st.AI[0, a, L.I_COUNTS] += shift
+            st.AS[0, a, L.S_COUNT_F] += shift
 
     def _shift_counts(self, a: int, shift: int):
+        """The counts moved by ``shift`` with the PLL's estimate (set_linear_count,
+        encoder.cpp:141-154: the estimate in turns is counts / the configured cpr,
+        encoder.cpp:800); the circular position keeps its value."""
         st = self.st
         st.C[0, a, L.C_COUNT_OFFSET] += shift
         st.AI[0, a, L.I_COUNTS] += shift
         st.AS[0, a, L.S_COUNT_F] += shift
-        st.AS[0, a, L.S_POS_EST] += shift / self.twin.axes.cpr
+        d_pe = shift / float(st.C[0, a, L.C_CPR])
+        st.AS[0, a, L.S_POS_EST] += d_pe
+        st.AS[0, a, L.S_POS_CIRC] -= d_pe
 
     def _run_offset_calibration(self, a: int):
         ax = self._axis[a]
@@ -449,7 +467,7 @@ class AxisThread:
             # fw-v0.5.1 encoder.cpp:197-201: a voltage R_config * I_cal, the current follows
             # through the winding's L/R
             current = current * ax["phase_resistance"] / self.twin.motor.phase_resistance
-            ramp = abs(current) / (3.0 * self.twin.motor.La / self.twin.motor.phase_resistance)
+            ramp = abs(current) / (3.0 * self.twin.motor.phase_inductance / self.twin.motor.phase_resistance)
         else:
             ramp = abs(current) / OFFSET_LOCK_TIME * 2.0                      # encoder.cpp:353
         # the lock at the start of the forward scan: -scan_distance / 2 (encoder.cpp:361)

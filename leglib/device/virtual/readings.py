@@ -2,10 +2,11 @@
 current controller's voltages, gains and currents, the estimators of other modes (a mixin
 of :class:`leglib.device.virtual.firmware.VirtualODrive`).
 
-The twin's current loop is ideal field-oriented control (Id = 0, the commutation exact): the
-readings follow from the kernel's state (measured Iq, the encoder's estimates, the bus)
-through the motor's equations with the plant's own R, L and flux linkage -- the steady
-state of the firmware's current controller (foc.cpp:80-180). File:line of fw-v0.5.6.
+The twin's current loop is the firmware's q-axis PI (foc.cpp:120-160) with the commutation
+exact and the d axis held at 0: the q axis's setpoint, voltage, integrator and power are the
+kernel's; the rest follows from the kernel's state (measured Iq, the encoder's estimates, the
+bus) through the motor's equations with the plant's own R, L and flux linkage -- the steady
+state of the firmware's d axis (foc.cpp:80-180). File:line of fw-v0.5.6.
 """
 
 from __future__ import annotations
@@ -16,11 +17,6 @@ import numpy as np
 
 from ...twin import layout as L
 
-# DRV8301 current sensing (motor.cpp:316-332, board.h:25-29, drv8301.cpp:31-34): the shunt
-# of a v3.5+ board, the amplifier's output swing and the gains it can be set to
-SHUNT_RESISTANCE = 500e-6        # [ohm]
-_MAX_UNITY_GAIN_CURRENT = 0.90 * 1.35 / SHUNT_RESISTANCE   # [A] kMargin * max_output_swing * shunt_conductance
-_GAINS = (10.0, 20.0, 40.0, 80.0)
 CURRENT_MEAS_PERIOD = 1.0 / 8000.0
 
 
@@ -32,14 +28,6 @@ def _f32(x) -> float:
 def _div(a, b) -> float:
     with np.errstate(divide="ignore", invalid="ignore"):
         return float(np.float32(a) / np.float32(b))
-
-
-def current_sense(requested_range: float) -> tuple[float, float]:
-    """(gain, max_allowed_current [A]) of the DRV8301 for ``requested_range`` [A]:
-    motor.cpp:316-332 with the gain snapped down (drv8301.cpp:31-34)."""
-    requested = _div(_MAX_UNITY_GAIN_CURRENT, requested_range)
-    gain = next((g for g in reversed(_GAINS) if not g > requested), _GAINS[0])
-    return gain, _f32(_MAX_UNITY_GAIN_CURRENT / gain)
 
 
 class AxisReadings:
@@ -65,19 +53,23 @@ class AxisReadings:
     def _motor_state(self, a: int) -> dict:
         """The current controller's quantities in the steady state of ideal FOC."""
         st, m = self.st, self.twin.motor
-        armed = st.AI[0, a, L.I_MODE] != L.MODE_IDLE
+        mode = st.AI[0, a, L.I_MODE]
+        armed = mode != L.MODE_IDLE
+        closed_loop = armed and mode != L.MODE_CALIB     # the kernel's current PI runs
         iq = float(st.AS[0, a, L.S_IQ_MEAS]) if armed else 0.0
-        iq_sp = float(st.AS[0, a, L.S_IQ]) if armed else 0.0
+        iq_sp = float(st.AS[0, a, L.S_IQ_SP]) if closed_loop else float(st.AS[0, a, L.S_IQ]) if armed else 0.0
         theta, omega = self._electrical(a)
         flux = m.torque_constant / (1.5 * m.pole_pairs)          # amplitude-invariant [V s]
-        R, Lq = m.phase_resistance, m.La
-        vq = R * iq + omega * flux if armed else 0.0
+        R, Lq = m.phase_resistance, m.phase_inductance
+        # Vq: the PI's voltage of this period (foc.cpp:139-154), the open loop's steady state
+        vq = float(st.AS[0, a, L.S_V_PREV]) if closed_loop else R * iq + omega * flux if armed else 0.0
         vd = -omega * Lq * iq if armed else 0.0
         pwm_phase = theta + 1.5 * CURRENT_MEAS_PERIOD * omega   # foc.cpp:150
         c, s = math.cos(theta), math.sin(theta)
         cp, sp = math.cos(pwm_phase), math.sin(pwm_phase)
         ialpha, ibeta = -s * iq, c * iq
         return {"iq": iq, "iq_sp": iq_sp, "id": 0.0, "vd": vd, "vq": vq, "theta": theta, "omega": omega,
+                "closed_loop": closed_loop,
                 "ialpha": ialpha, "ibeta": ibeta,
                 "v_alpha": cp * vd - sp * vq, "v_beta": sp * vd + cp * vq,
                 "ibus": float(st.AS[0, a, L.S_IBUS_MOTOR]) if armed else 0.0}
@@ -91,16 +83,19 @@ class AxisReadings:
             bw = float(self.st.C[0, a, L.C_CURRENT_BW])
             p = _f32(bw * ax["phase_inductance"])
             return p if name.endswith("p_gain") else _f32(p * _div(ax["phase_resistance"], ax["phase_inductance"]))
+        # the current sense's range: motor.cpp:312-332, set up by the IDLE loop from
+        # requested_current_range (the kernel's C_MAX_CURRENT)
+        max_current = _f32(self.st.C[0, a, L.C_MAX_CURRENT])
         if name in ("max_allowed_current", "current_control.max_allowed_current"):
-            return current_sense(self._requested_current_range(a))[1]
+            return max_current
         if name == "max_dc_calib":
-            return _f32(0.1 * current_sense(self._requested_current_range(a))[1])
+            return _f32(0.1 * max_current)
         if name == "effective_current_lim":
             # motor.cpp:365-380: the configured limit, the sense range, the thermistors
             # (the FETs at ambient, the motor thermistor off: no derating)
-            return min(float(self.st.C[0, a, L.C_CURRENT_LIM]), current_sense(self._requested_current_range(a))[1])
+            return min(float(self.st.C[0, a, L.C_CURRENT_LIM]), max_current)
         if name == "current_control.overcurrent_trip_level":      # fw-v0.5.1 motor.cpp
-            return _f32(float(self.st.C[0, a, L.C_CURRENT_LIM]) + L.CURRENT_LIM_MARGIN)
+            return _f32(float(self.st.C[0, a, L.C_CURRENT_LIM]) + float(self.st.C[0, a, L.C_CURRENT_LIM_MARGIN]))
         if name == "armed_state":                                  # fw-v0.5.1: 0 disarmed, 3 armed
             return 3 if self.st.AI[0, a, L.I_MODE] != L.MODE_IDLE else 0
         ms = self._motor_state(a)
@@ -113,8 +108,8 @@ class AxisReadings:
             "current_control.Ialpha_measured": ms["ialpha"], "current_control.Ibeta_measured": ms["ibeta"],
             "current_control.final_v_alpha": ms["v_alpha"], "current_control.final_v_beta": ms["v_beta"],
             "current_control.phase": ms["theta"], "current_control.phase_vel": ms["omega"],
-            # foc.cpp:178: the bus power of this motor
-            "current_control.power": vbus * ms["ibus"],
+            # foc.cpp:175-179: vbus x (mod . Idq), the kernel's in closed loop
+            "current_control.power": float(self.st.AS[0, a, L.S_FOC_POWER]) if ms["closed_loop"] else vbus * ms["ibus"],
             "current_control.v_current_control_integral_d": ms["vd"],
             "current_control.v_current_control_integral_q": ms["vq"],
             "current_control.Ibus": ms["ibus"],
@@ -129,9 +124,6 @@ class AxisReadings:
     def _r_current_control(self, a: int, generic: str):
         return self._r_motor(a, generic)
 
-    def _requested_current_range(self, a: int) -> float:
-        return float(self._settings[a].get("axis*.motor.config.requested_current_range", 60.0))
-
     def _set_torque_constant(self, a: int, value: float):
         """motor.hpp: stored as written. The kernel divides by it (torque to current), so it
         takes only a finite value that is not zero; with 0 the firmware's torque limit is 0
@@ -142,26 +134,17 @@ class AxisReadings:
             self.st.C[0, a, L.C_KT] = value
 
     def _set_phase_resistance(self, a: int, value: float):
-        # motor.hpp:59: the gains follow (p_gain/i_gain read them from the stored values)
+        """motor.hpp:58-59: stored, and the current controller's gains follow
+        (motor.cpp:297-302: the kernel's current PI reads C_PHASE_R)."""
         self._axis[a]["phase_resistance"] = value
+        self.st.C[0, a, L.C_PHASE_R] = value
 
     def _set_phase_inductance(self, a: int, value: float):
+        """As :meth:`_set_phase_resistance`: the PI's gains from it (C_PHASE_L)."""
         self._axis[a]["phase_inductance"] = value
+        self.st.C[0, a, L.C_PHASE_L] = value
 
     # -- the controller ---------------------------------------------------------------
-    def _r_torque_setpoint(self, a: int, generic: str = "") -> float:
-        return float(self.st.AS[0, a, L.S_TQ_SP]) if self.st.AI[0, a, L.I_MODE] != L.MODE_IDLE else 0.0
-
-    def _r_power(self, a: int, generic: str) -> float:
-        """controller.cpp:422-432 without the low-pass: the mechanical power of the torque
-        command and the electrical power into the rotor (bus power less copper loss)."""
-        if self.st.AI[0, a, L.I_MODE] == L.MODE_IDLE:
-            return 0.0
-        omega = 2 * math.pi * float(self.st.AS[0, a, L.S_VEL_EST])
-        if generic.endswith("mechanical_power"):
-            return float(self.st.AS[0, a, L.S_TQ_SP]) * omega
-        return self.twin.motor.torque_constant * float(self.st.AS[0, a, L.S_IQ_MEAS]) * omega
-
     def _r_last_error_time(self, a: int, which: str) -> float:
         # controller.cpp:23, motor.cpp:343: the control-loop count times its period at the
         # error (taken where the model notices it: at the end of the tick batch it occurred in)
@@ -202,9 +185,6 @@ class AxisReadings:
             return vel_counts
         if name in ("pos_cpr_counts", "pos_cpr"):
             return math.fmod(pos_counts, cpr) % cpr if cpr else math.nan
-        if name == "pos_circular":
-            span = float(self._settings[a].get("axis*.controller.config.circular_setpoint_range", 1.0))
-            return math.fmod(pos, span) % span if span else math.nan
         if name == "delta_pos_cpr_counts":
             # the PLL's phase-detector error (encoder.cpp:771-773): the count less the estimate
             return float(int(self.st.AI[0, a, L.I_COUNTS]) - math.floor(pos_counts))
