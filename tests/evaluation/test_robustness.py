@@ -262,3 +262,36 @@ def test_a_table_older_than_the_code_it_scores_says_so(tmp_path):
     assert "the map changes" in notice and "make robustness" in notice
     assert "does not have" in R.staleness({"commit": "0123abc"}, repo=tmp_path)
     assert "does not say which commit" in R.staleness({"commit": None}, repo=tmp_path)
+
+
+def test_the_repositorys_table_holds_every_identified_value_with_its_interval():
+    """reports/robustness/robustness.json (what notebook 05 shows): every stored (zeta, fn)
+    of the methods that identify them holds its value inside its 90 % interval (or is a
+    failure with its reason and no numbers), every error likewise, every cell's median and
+    worst inside their ranges; its markdown and its reading quote them."""
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "reports" / "robustness" / "robustness.json"
+    doc = R.load_table(path)
+    stored = 0
+    for plant, row in doc["scores"].items():
+        for t in doc["targets"][plant]:
+            assert t["source"] == "thesis" or _check_dynamics(t)
+        for method in R.INTERVAL_METHODS:
+            cell = row[method]
+            for name in ("median", "worst"):
+                v, iv = cell[name], cell[f"{name}_interval"]
+                assert math.isinf(v) or _inside(v, iv), (plant, method, name)
+            for item in cell["detail"].values():
+                for part in ("measured", "ideal", "nearest"):
+                    if part in item:
+                        stored += _check_dynamics(item[part])
+                if "error" in item:
+                    assert all(_inside(e, iv) for e, iv in zip(item["error"], item["error_interval"]))
+    assert stored >= len(doc["scores"]) * 15     # 5 second-order steps (and their ideal readings), 4+ per method
+    table = R.table_from_json(doc)
+    assert R.NO_INTERVAL not in table.markdown() + table.detail_markdown()
+    text = findings.robustness(doc)
+    assert findings.unquoted(text, doc) == [] and R.NO_INTERVAL not in text
+    so = doc["scores"]["default"]["second order"]
+    assert f"worst error {percent_interval_text(so['worst'], so['worst_interval'], sign=False)} on the default" in text
