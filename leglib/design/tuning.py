@@ -53,7 +53,7 @@ from ..model.dynamics import mass_matrix
 from ..model.kinematics import foot_position
 from ..units import interval_text
 from .points import identify_response
-from .validation import verdict
+from .validation import relative_intervals, verdict
 
 #: default relative error in zeta and fn at which a design stops
 TOLERANCE = 0.02
@@ -307,6 +307,13 @@ class Tuning:
     def error(self) -> tuple:
         """Relative errors (zeta, fn) of the measured values against the target."""
         return tuple(float(m / t - 1) for m, t in zip(self.measured, self.target))
+
+    @property
+    def error_interval(self) -> tuple:
+        """90 % intervals ((zeta low, high), (fn low, high)) of :attr:`error`: the final check's
+        intervals relative to the target (:func:`leglib.design.validation.relative_intervals`;
+        NaN when it was not identified)."""
+        return relative_intervals(self.intervals, self.target)
 
     @property
     def model_error(self) -> tuple:

@@ -30,6 +30,54 @@ from ..units import dynamics_text, percent_interval_text
 from .points import STATUS_OK, identify_response
 
 
+def relative_intervals(intervals, reference) -> tuple[tuple, tuple]:
+    """90 % intervals ((zeta low, high), (fn low, high) [Hz]) of a measurement relative to
+    ``reference`` (zeta, fn [Hz]): each bound b as b / r - 1, the interval of the relative
+    error measured / reference - 1 when the reference is taken as exact (a target, or the
+    same response read by an ideal sensor). NaN bounds stay NaN."""
+    return tuple(tuple(float(b) / float(r) - 1.0 for b in iv) for iv, r in zip(intervals, reference))
+
+
+def abs_interval(interval) -> tuple[float, float]:
+    """The interval of |x| for x in ``interval`` (low, high): 0 at the bottom when it holds
+    0. NaN bounds give (NaN, NaN)."""
+    lo, hi = (float(b) for b in interval)
+    if math.isnan(lo) or math.isnan(hi):
+        return (math.nan, math.nan)
+    return (0.0 if lo <= 0.0 <= hi else min(abs(lo), abs(hi)), max(abs(lo), abs(hi)))
+
+
+def error_statistics(errors, intervals) -> dict:
+    """Median and worst |relative error| of items with their intervals.
+
+    Parameters
+    ----------
+    errors : sequence of relative errors [-] (NaN: no error, e.g. a target outside a
+        method's answers, left out; inf: not identifiable, counted as infinite)
+    intervals : sequence of (low, high), each error's 90 % interval ((NaN, NaN) where it has
+        none; an infinite error's is (inf, inf))
+
+    Returns
+    -------
+    dict: ``median``, ``worst`` (NaN without items) and ``median_interval``,
+    ``worst_interval``: the range of each statistic that the items' intervals allow (the
+    median and the maximum are monotone in every item, so they are the statistic of the
+    intervals' lower and upper bounds of |error|). Each item's interval is a 90 % one; the
+    statistic's holds its true value whenever every item's does. None when an item with a
+    finite error has no interval.
+    """
+    pairs = [(abs(float(e)), abs_interval((math.inf, math.inf) if math.isinf(float(e)) else iv))
+             for e, iv in zip(errors, intervals) if not math.isnan(float(e))]
+    if not pairs:
+        return {"median": math.nan, "worst": math.nan, "median_interval": None, "worst_interval": None}
+    e = np.array([x for x, _ in pairs])
+    b = np.array([iv for _, iv in pairs], float)
+    bounded = bool(np.all(np.isfinite(b) | np.isinf(b)))   # no NaN bound
+    stat = (lambda f: (float(f(b[:, 0])), float(f(b[:, 1]))) if bounded else None)
+    return {"median": float(np.median(e)), "worst": float(np.max(e)), "median_interval": stat(np.median),
+            "worst_interval": stat(np.max)}
+
+
 def verdict(zeta_interval, fn_interval, target, tolerance: float) -> tuple[bool, str]:
     """Whether measured 90 % intervals of (zeta, fn [Hz]) put ``target`` (zeta, fn) reached
     within ``tolerance`` (relative): True only when both intervals lie inside
@@ -54,6 +102,14 @@ def verdict(zeta_interval, fn_interval, target, tolerance: float) -> tuple[bool,
     return True, f"reached: both 90 % intervals lie within +-{tolerance:.1%} of the target"
 
 
+def nearest_text(pair, intervals) -> str:
+    """A method's nearest achievable (zeta, fn [Hz]) with its 90 % intervals, or saying it
+    has none."""
+    if intervals is None:
+        return f"ζ {pair[0]:.3f}, fn {pair[1]:.2f} Hz, no interval"
+    return dynamics_text(pair[0], pair[1], *intervals, zeta_name="ζ")
+
+
 @dataclass
 class TargetResult:
     """One target of a :class:`Validation`.
@@ -65,7 +121,9 @@ class TargetResult:
     predicted : the method's own (zeta, fn [Hz]) for its gains, or None
     measured : :class:`leglib.design.points.PointResult` of the check step, or None
     experiments : steps this target cost (the method's own plus the check)
-    outside : the method had no answer (``nearest``: the nearest achievable (zeta, fn))
+    outside : the method had no answer (``nearest``: the nearest achievable (zeta, fn),
+        ``nearest_intervals`` its 90 % intervals ((zeta low, high), (fn low, high)) where the
+        method gives them)
     note : what the method said
     """
 
@@ -77,6 +135,7 @@ class TargetResult:
     outside: bool = False
     nearest: tuple | None = None
     note: str = ""
+    nearest_intervals: tuple | None = None
 
     @property
     def identified(self) -> bool:
@@ -99,8 +158,7 @@ class TargetResult:
         if not self.identified:
             nan = (math.nan, math.nan)
             return (nan, nan)
-        return tuple(tuple(b / t - 1.0 for b in iv) for iv, t in
-                     ((self.measured.zeta_interval, self.target[0]), (self.measured.fn_interval, self.target[1])))
+        return relative_intervals((self.measured.zeta_interval, self.measured.fn_interval), self.target)
 
     @property
     def worst_bound(self) -> float:
@@ -151,16 +209,21 @@ class Validation:
 
     def summary(self) -> dict:
         """Median and worst absolute relative errors (of zeta, of fn, of both), the largest
-        error any check's 90 % interval allows (``worst_bound``), each answered target's error
-        intervals (``error_intervals``, in the rows' order), the targets answered, outside and
-        not identifiable, the experiments."""
+        error any check's 90 % interval allows (``worst_bound``), the ranges of the median and
+        worst error of both that the checks' intervals allow (``median_interval``,
+        ``worst_interval``: :func:`error_statistics`), each answered target's error intervals
+        (``error_intervals``, in the rows' order), the targets answered, outside and not
+        identifiable, the experiments."""
         e = np.abs(self.errors)
         stat = (lambda f, x: float(f(x)) if x.size else math.nan)
         answered = [r for r in self.rows if not r.outside]
         bounds = np.array([r.worst_bound for r in answered], float)
+        both = error_statistics([x for r in answered for x in r.error],
+                                [iv for r in answered for iv in r.error_interval])
         out = {"median_zeta": stat(np.median, e[:, 0]), "median_fn": stat(np.median, e[:, 1]),
                "worst_zeta": stat(np.max, e[:, 0]), "worst_fn": stat(np.max, e[:, 1]),
                "median": stat(np.median, e), "worst": stat(np.max, e), "worst_bound": stat(np.max, bounds),
+               "median_interval": both["median_interval"], "worst_interval": both["worst_interval"],
                "error_intervals": [[list(iv) for iv in r.error_interval] for r in answered],
                "targets": len(e), "outside_region": sum(r.outside for r in self.rows),
                "unidentified": sum((not r.outside) and not r.identified for r in self.rows),
@@ -181,7 +244,7 @@ class Validation:
             tgt = f"({r.target[0]:.3f}, {r.target[1]:.2f})"
             pred = f"({r.predicted[0]:.3f}, {r.predicted[1]:.2f})" if r.predicted else "–"
             if r.outside:
-                near = f" (nearest {r.nearest[0]:.3f}, {r.nearest[1]:.2f} Hz)" if r.nearest else ""
+                near = f" (nearest {nearest_text(r.nearest, r.nearest_intervals)})" if r.nearest else ""
                 lines.append(f"| {k} | {tgt} | outside the region{near} | – | – | {r.experiments} |"
                              + (" – |" if tol is not None else ""))
                 continue
@@ -250,8 +313,12 @@ def validate(odrv, targets, gains_of, method: str, setup_experiments: int = 0, s
         try:
             gains, spent, predicted, note = gains_of(tgt)
         except OutsideRegionError as exc:
-            result.rows.append(TargetResult(tgt, outside=True, nearest=(exc.nearest.zeta, exc.nearest.fn),
-                                            note="outside the region"))
+            near = exc.nearest
+            iv = (tuple(getattr(near, "zeta_interval", (math.nan, math.nan))),
+                  tuple(getattr(near, "fn_interval", (math.nan, math.nan))))
+            result.rows.append(TargetResult(tgt, outside=True, nearest=(near.zeta, near.fn), note="outside the region",
+                                            nearest_intervals=None if any(math.isnan(b) for x in iv for b in x)
+                                            else iv))
             continue
         point = identify_response(step_response(dev, *gains, **(step_kwargs or {})), dev.leg)
         result.rows.append(TargetResult(tgt, tuple(float(g) for g in gains),

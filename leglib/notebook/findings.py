@@ -14,6 +14,7 @@ import math
 import re
 from pathlib import Path
 
+from ..evaluation.robustness import error_text, worst_of
 from ..identify.friction import FrictionFit, LegFrictionFit
 from ..units import dynamics_text, interval_text, percent_interval_text, significant
 
@@ -270,8 +271,11 @@ def validation(m: dict) -> str:
     d = m["design_study"]
     if d and "all" in d:
         a = d["all"]
-        out.append(f"- tune on {m['design_plants']} plant(s): median error {_pct(a['median'], sign=False)}, worst "
-                   f"{_pct(a['worst'], sign=False)}, at most {a['max_experiments']} experiments per target; "
+        out.append(f"- tune on {m['design_plants']} plant(s): median error "
+                   f"{error_text(a['median'], a.get('median_interval'), 'design')}, worst "
+                   f"{error_text(a['worst'], a.get('worst_interval'), 'design')}"
+                   f"{' (the ranges their intervals allow)' if a.get('worst_interval') is not None else ''}, "
+                   f"at most {a['max_experiments']} experiments per target; "
                    f"{a['reached']} of {a['targets']} targets confirmed within the tolerance by their intervals, "
                    f"{a['undecided']} with intervals wider than the tolerance (the response's model error is larger "
                    f"than it).")
@@ -305,9 +309,21 @@ def _cells(doc: dict, method: str) -> dict:
     return {p: row[method] for p, row in doc["scores"].items() if method in row}
 
 
-def _worst(score: dict) -> str:
+def _worst(score: dict, method: str) -> str:
+    """A cell's worst error as the table writes it (with its 90 % interval for the methods
+    that have one, "no interval recorded" from a table without them), "no number" when it is
+    not finite."""
     w = score["worst"]
-    return _pct(w, sign=False) if w is not None and math.isfinite(w) else "no number"
+    if w is None or not math.isfinite(w):
+        return "no number"
+    return error_text(w, score.get("worst_interval"), method)
+
+
+def _largest(cells, method: str) -> tuple[float, str]:
+    """The largest finite worst error of ``cells`` and its text with the range the cells'
+    intervals allow (:func:`leglib.evaluation.robustness.worst_of`)."""
+    w, iv = worst_of(cells, method)
+    return w, error_text(w, iv, method)
 
 
 def robustness(doc: dict) -> str:
@@ -315,8 +331,10 @@ def robustness(doc: dict) -> str:
     :func:`leglib.evaluation.robustness.write` wrote, or its copy in notebook 05's metrics)
     says, method by method, written from its numbers: where each method degrades (the
     table's own rule, its ``degraded`` list: worst error above 5 % and above twice the
-    default plant's), and how far it stays elsewhere. Which methods rest on a structure they
-    identify and which measure the leg is what the methods are, not a result."""
+    default plant's), and how far it stays elsewhere. The errors of the methods that
+    identify (zeta, fn) are quoted with the ranges their 90 % intervals allow (a table
+    written before they were stored says "no interval recorded"). Which methods rest on a
+    structure they identify and which measure the leg is what the methods are, not a result."""
     degraded = {}
     for method, plant, worst, _ in doc.get("degraded", []):
         degraded.setdefault(method, []).append((plant, worst))
@@ -335,15 +353,14 @@ def robustness(doc: dict) -> str:
         if not cells:
             continue
         base = cells.get("default")
-        parts = [f"{intro}: worst error {_worst(base)} on the default plant" if base else intro]
+        parts = [f"{intro}: worst error {_worst(base, method)} on the default plant" if base else intro]
         deg = degraded.get(method, [])
         if deg:
-            parts.append("degrades on " + ", ".join(f"{p} ({_pct(w, sign=False)})" for p, w in deg))
+            parts.append("degrades on " + ", ".join(f"{p} ({_worst(cells[p], method)})" for p, _ in deg))
         rest = [(p, c) for p, c in cells.items() if p != "default" and p not in dict(deg)]
-        finite = [c["worst"] for _, c in rest if c["worst"] is not None and math.isfinite(c["worst"])]
-        if rest and finite:
-            parts.append(f"{'and stays' if deg else 'stays'} within {_pct(max(finite), sign=False)} on "
-                         + ", ".join(p for p, _ in rest))
+        largest, text = _largest([c for _, c in rest], method)
+        if rest and math.isfinite(largest):
+            parts.append(f"{'and stays' if deg else 'stays'} within {text} on " + ", ".join(p for p, _ in rest))
         line = "- " + "; ".join(parts) + "."
         if method == "friction":
             zero = [p for p, c in cells.items()
@@ -362,12 +379,17 @@ def robustness(doc: dict) -> str:
                            "bearings' physics.")
         if method == "state feedback: playback" and base:
             worst = [c["worst"] for c in cells.values() if c["worst"] is not None and math.isfinite(c["worst"])]
-            measured = [c["worst"] for m in MEASURES for c in _cells(doc, m).values()
-                        if c["worst"] is not None and math.isfinite(c["worst"])]
-            if worst and measured and min(worst) > max(measured):
-                line += (f" Open loop, it departs by {_pct(min(worst), sign=False)} to {_pct(max(worst), sign=False)} "
-                         f"on every plant, the default included: more than any method that measures the leg does on "
-                         f"any plant (at most {_pct(max(measured), sign=False)}); it is no way to reach a target.")
+            # the measuring methods' largest worst error on any plant, with the range their
+            # intervals allow: the playback is said to depart by more only beyond its upper end
+            top, iv = worst_of([c for m in MEASURES for c in _cells(doc, m).values()])
+            departs = (f" Open loop, it departs by {_pct(min(worst), sign=False)} to {_pct(max(worst), sign=False)} "
+                       f"on every plant, the default included") if worst else ""
+            if worst and math.isfinite(top) and min(worst) > (top if iv is None else iv[1]):
+                line += (f"{departs}: more than any method that measures the leg does on any plant (at most "
+                         f"{error_text(top, iv)}); it is no way to reach a target.")
+            elif worst and math.isfinite(top) and min(worst) > top:
+                line += (f"{departs}: more than the methods that measure the leg do on any plant (at most "
+                         f"{error_text(top, iv)}), though their intervals allow more than it departs.")
         if method == "design":
             steps = [d["experiments"] for c in cells.values() for d in c.get("detail", {}).values()
                      if isinstance(d, dict) and "experiments" in d]

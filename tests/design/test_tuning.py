@@ -85,6 +85,11 @@ def test_a_target_confirmed_by_its_intervals_is_reached():
     (zl, zh), (fl, fh) = d.intervals
     assert d.reached and d.verdict.startswith("reached"), d
     assert 0.4 * 0.95 <= zl <= d.measured[0] <= zh <= 0.4 * 1.05 and 8 * 0.95 <= fl <= fh <= 8 * 1.05
+    # the error's interval: the same bounds relative to the target, holding the error, inside 5 %
+    (ezl, ezh), (efl, efh) = d.error_interval
+    assert (ezl, ezh) == pytest.approx((zl / 0.4 - 1, zh / 0.4 - 1)) and ezl <= d.error[0] <= ezh
+    assert (efl, efh) == pytest.approx((fl / 8 - 1, fh / 8 - 1)) and efl <= d.error[1] <= efh
+    assert max(abs(ezl), ezh, abs(efl), efh) <= 0.05
 
 
 def test_design_out_of_reach_reports_instead_of_pretending(loaded_dev):

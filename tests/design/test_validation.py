@@ -86,3 +86,38 @@ def test_errors_are_intervals_and_reached_needs_them_inside_the_tolerance(dev):
     # a tolerance below the intervals' half-width: the verdict says it cannot be told
     ok, why = r.reached(1e-4)
     assert not ok and "larger than the tolerance" in why
+
+
+def test_error_statistics_are_the_statistics_of_the_intervals_bounds():
+    """The median and worst |error| of items with 90 % intervals, and the ranges those allow:
+    |x| of an interval holding 0 starts at 0; an infinite error (not identifiable) counts,
+    a NaN one (outside) does not; an item without an interval leaves no range."""
+    from leglib.design.validation import abs_interval, error_statistics
+
+    assert abs_interval((-0.02, 0.05)) == (0.0, 0.05) and abs_interval((-0.05, -0.01)) == (0.01, 0.05)
+    errors = [0.01, -0.03, 0.002, math.nan]
+    ivs = [(-0.01, 0.03), (-0.05, -0.02), (0.001, 0.004), (math.nan, math.nan)]
+    s = error_statistics(errors, ivs)
+    assert s["median"] == 0.01 and s["worst"] == 0.03
+    assert s["median_interval"] == (0.001, 0.03) and s["worst_interval"] == (0.02, 0.05)
+    assert s["median_interval"][0] <= s["median"] <= s["median_interval"][1]
+    s = error_statistics(errors + [math.inf], ivs + [(math.nan, math.nan)])
+    assert s["worst"] == math.inf and s["worst_interval"] == (math.inf, math.inf)
+    assert s["median"] == 0.02 and s["median_interval"] == (0.0105, 0.04)   # between items 2 and 3
+    assert error_statistics([0.01], [(math.nan, math.nan)])["worst_interval"] is None
+    assert error_statistics([math.nan], [(math.nan, math.nan)])["worst"] != 0.0   # NaN: no items
+
+
+def test_a_target_outside_keeps_the_nearest_points_intervals(dev):
+    p = identify_response(lg.step_response(dev, *STABLE), dev.leg)
+    near = Choice(STABLE, p.zeta, p.fn, 1.0, p.zeta_interval, p.fn_interval)
+
+    def gains_of(target):
+        raise OutsideRegionError(target, near, 0.05)
+
+    v = lg.validate(dev, [(3.0, 40.0)], gains_of, "test")
+    r = v.rows[0]
+    assert r.outside and r.nearest_intervals == (p.zeta_interval, p.fn_interval)
+    assert f"nearest {p.text().replace('zeta', 'ζ')}" in v.markdown()
+    s = v.summary()
+    assert s["median_interval"] is None and math.isnan(s["worst"])

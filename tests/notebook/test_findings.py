@@ -67,7 +67,8 @@ def _m05(max_zeta=0.0459):
                                          "tolerance (+-5.0%)", "tolerance": 0.05},
             "summary": {"map": {"median": 0.012, "worst": 0.2, "worst_bound": 0.4, "targets": 5, "unidentified": 0,
                                 "experiments": 405, "outside_region": 1}},
-            "design_study": {"all": {"median": 0.01, "worst": 0.02, "max_experiments": 4, "reached": 3,
+            "design_study": {"all": {"median": 0.01, "worst": 0.02, "median_interval": [0.0, 0.061],
+                                     "worst_interval": [0.0, 0.13], "max_experiments": 4, "reached": 3,
                                      "undecided": 5, "targets": 8}}, "design_plants": 5}
 
 
@@ -84,6 +85,14 @@ def test_05_leads_with_the_thesis_measure_result_and_quotes_intervals():
     # zeta to the digits its interval supports (half-width 0.08: two decimals), not 0.242 [0.162, 0.323]
     assert "zeta 0.24 [0.16, 0.32], fn 5.0 [4.5, 5.6] Hz" in text and "interval" in text
     assert findings.unquoted(text, m) == []
+    # tune's errors over every plant with the ranges their intervals allow; a metrics file
+    # written before they were stored says so
+    assert "median error 1.0 % [0.0, 6.1] %, worst 2 % [0, 13] % (the ranges their intervals allow)" in text
+    old = json.loads(json.dumps(m))
+    for k in ("median_interval", "worst_interval"):
+        old["design_study"]["all"].pop(k)
+    assert ("median error 1.0 % (no interval recorded), worst 2.0 % (no interval recorded), at most"
+            in findings.render("05_validation", old))
     m["thesis_measure"]["reached"] = True
     assert "reaches the thesis's target" in findings.render("05_validation", m).splitlines()[0]
     # a step the listing fails on: no number quoted for it, its reason instead
@@ -138,18 +147,24 @@ def test_02_quotes_listing_7_7_with_its_intervals_or_no_reading(reading, says, q
         assert "1.000" not in line and "zeta 1" not in line
 
 
-def _robustness_doc():
-    def cell(median, worst, experiments=1, detail=None, note=""):
-        return {"median": median, "worst": worst, "experiments": experiments, "detail": detail or {}, "note": note,
-                "seconds": 1.0}
+def _robustness_doc(intervals=True):
+    """A robustness table's JSON; ``intervals``: the second-order and design cells carry the
+    ranges of their median and worst errors (a table written before they were stored: not)."""
+    def cell(median, worst, experiments=1, detail=None, note="", mi=None, wi=None):
+        out = {"median": median, "worst": worst, "experiments": experiments, "detail": detail or {}, "note": note,
+               "seconds": 1.0}
+        return {**out, "median_interval": mi, "worst_interval": wi} if intervals and wi is not None else out
     fr = {"default": cell(0.001, 0.007, detail={"viscous1": -0.007, "rms_deg": [0.017, 0.016]}),
           "belt": cell(0.068, 0.203, detail={"viscous1": -0.203, "rms_deg": [0.094, 0.086]}),
           "lugre": cell(0.058, 0.996, detail={"viscous1": -0.996, "rms_deg": [0.48, 0.2]},
                         note="fit stopped at 200 evaluations")}
     scores = {p: {"friction": fr[p],
                   "state feedback: playback": cell(0.11, {"default": 0.113, "belt": 0.109, "lugre": 0.143}[p]),
-                  "second order": cell(0.003, {"default": 0.009, "belt": 0.021, "lugre": 0.012}[p], 5),
-                  "design": cell(0.008, 0.02, 16, {"target 1": {"experiments": 2}, "target 2": {"experiments": 4}})}
+                  "second order": cell(0.003, {"default": 0.009, "belt": 0.021, "lugre": 0.012}[p], 5,
+                                       mi=[0.0, 0.02], wi={"default": [0.0, 0.18], "belt": [0.004, 0.061],
+                                                           "lugre": [0.0, 0.07]}[p]),
+                  "design": cell(0.008, 0.02, 16, {"target 1": {"experiments": 2}, "target 2": {"experiments": 4}},
+                                 mi=[0.0, 0.06], wi=[0.0, 0.13])}
               for p in ("belt", "default", "lugre")}
     degraded = [["friction", "belt", 0.203, 0.007], ["friction", "lugre", 0.996, 0.007]]
     return {"commit": "abc1234", "date": "2026-12-01T10:50:36+00:00", "payload": 0.0, "scores": scores,
@@ -167,14 +182,39 @@ def test_reading_the_robustness_table_is_written_from_its_numbers():
     fr = next(ln for ln in text.splitlines() if ln.startswith("- **Friction"))
     assert "degrades on belt (20.3 %), lugre (99.6 %)" in fr and "zero on lugre" in fr
     assert "On lugre: fit stopped at 200 evaluations." in fr
+    # the methods with intervals are quoted with the ranges their items' intervals allow
+    so = next(ln for ln in text.splitlines() if "second-order identification" in ln)
+    assert "worst error 1 % [0, 18] % on the default plant" in so
+    assert "stays within 2.1 % [0.4, 7.0] % on belt, lugre" in so   # the largest worst, its range over both
+    assert "worst error 2 % [0, 13] % on the default plant" in text
     pb = next(ln for ln in text.splitlines() if "played-back" in ln)
-    assert "departs by 10.9 % to 14.3 % on every plant" in pb and "at most 2.1 %" in pb
+    # more than any measuring method's worst error on any plant, but not more than the upper end
+    # of their ranges (18 %): said so, without the conclusion
+    assert ("departs by 10.9 % to 14.3 % on every plant, the default included: more than the methods that measure "
+            "the leg do on any plant (at most 2 % [0, 18] %), though their intervals allow more" in pb)
+    assert "no way to reach a target" not in pb
     assert "at most 4 steps per target" in text
     # a measuring method that degrades is said to, and the structure/measure claim is not made
     doc["degraded"].append(["second order", "belt", 0.21, 0.009])
     other = findings.robustness(doc)
     assert "Methods that measure the leg degrade too here (second order)" in other
     assert "the methods that measure the leg do not" not in other
+
+
+def test_reading_an_old_robustness_table_says_no_interval_was_recorded():
+    """A table written before the intervals were stored: every error of a method that has
+    intervals is quoted with "no interval recorded", friction's (which has none in any
+    table) as it is; the claims are the point values'."""
+    doc = _robustness_doc(intervals=False)
+    text = findings.robustness(doc)
+    assert findings.unquoted(text, doc) == []
+    so = next(ln for ln in text.splitlines() if "second-order identification" in ln)
+    assert "worst error 0.9 % (no interval recorded) on the default plant" in so
+    assert "stays within 2.1 % (no interval recorded) on belt, lugre" in so
+    fr = next(ln for ln in text.splitlines() if ln.startswith("- **Friction"))
+    assert "no interval" not in fr and "degrades on belt (20.3 %)" in fr
+    pb = next(ln for ln in text.splitlines() if "played-back" in ln)
+    assert "departs by 10.9 % to 14.3 % on every plant" in pb and "at most 2.1 % (no interval recorded)" in pb
 
 
 def test_03_playback_says_what_its_runs_show():

@@ -304,20 +304,38 @@ def test_04_pid_sweeps(sweep04):
 
 
 @pytest.mark.notebook
+def _without_intervals(obj):
+    """``obj`` (a robustness table's JSON) as a table written before the intervals were stored."""
+    drop = {"zeta_interval", "fn_interval_hz", "error_interval", "median_interval", "worst_interval"}
+    if isinstance(obj, dict):
+        return {k: _without_intervals(v) for k, v in obj.items() if k not in drop}
+    if isinstance(obj, list):
+        return [_without_intervals(v) for v in obj]
+    return obj
+
+
 def test_05_validation(sweep04, tmp_path):
-    """Notebook 05 started from 04's saved design, written as a file of before intervals were
-    stored (its measured and predicted values only): it loads, says "no interval recorded",
-    and 05 saves its own design with the intervals of the step it measured."""
+    """Notebook 05 started from 04's saved design and the repository's robustness table, both
+    written as files of before intervals were stored (their values only): they load, say "no
+    interval recorded", and 05 saves its own design with the intervals of the step it measured."""
+    from leglib.evaluation import robustness
+
     out04, _ = sweep04
     old = json.loads((out04 / "processed" / "design_04_thesis_target.json").read_text())
     for part in ("measured", "predicted"):
         for k in ("zeta_interval", "fn_interval_hz"):
             old[part].pop(k, None)
     (tmp_path / "old_design.json").write_text(json.dumps(old))
+    table = json.loads((NOTEBOOKS[4].parent.parent / "reports" / "robustness" / "robustness.json").read_text())
+    old_table = _without_intervals(table)
+    (tmp_path / "old_robustness.json").write_text(json.dumps(old_table))
     m = _run(NOTEBOOKS[4], tmp_path, sweep_dir=str(out04 / "sweep"), processed_dir=str(tmp_path / "processed"),
-             design_file=str(tmp_path / "old_design.json"))
+             design_file=str(tmp_path / "old_design.json"), robustness_path=str(tmp_path / "old_robustness.json"))
     shown = _shown_markdown(tmp_path / NOTEBOOKS[4].name)
     assert "no interval recorded" in shown
+    # the old table's cells and reading: the values it holds, each saying it has no interval
+    assert robustness.table_from_json(old_table).markdown() in shown
+    assert m["robustness"] is not None and "(no interval recorded)" in findings.robustness(m["robustness"])
     g = designs.load(tmp_path / "processed" / "design_05_thesis_target.json")
     assert g.gains == tuple(m["thesis_target"]["gains"]) and g.measured == (m["thesis_target"]["zeta"],
                                                                             m["thesis_target"]["fn"])
