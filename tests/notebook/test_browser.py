@@ -498,12 +498,13 @@ def test_live_view_redraws_during_a_realtime_step(lab, browser):
         warnings.warn(f"the host stalled {stats['max_gap_s']:.2f} s during the realtime step; the watchdog "
                       f"disarmed the motors as on the device")
         return
-    assert stats["received"] >= stats["samples"] > 1000
+    assert stats["received"] >= stats["samples"] > 0     # every sample the step took reached the view
     # the sampling keeps its requested 2 ms period (the median: a host that loses the CPU
     # skips a slot now and then, which lowers the mean rate, not the period)
     assert stats["median_period_s"] == pytest.approx(0.002, rel=0.05)
-    # the mean rate only shows that sampling went on throughout: how far a loaded 2-core host
-    # lowers it is a benchmark's matter (make bench liveview_sampling), not this test's
+    # the mean rate only shows that sampling went on throughout (at 250 Hz, at least 750 of the
+    # 3 s step's 1500 slots): how far a loaded 2-core host lowers it is a benchmark's matter
+    # (make bench liveview_sampling), not this test's
     assert stats["sample_rate_hz"] > 250
 
 
