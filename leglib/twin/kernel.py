@@ -271,9 +271,9 @@ def _run_block_any(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABO
     # ``plain`` goes to _run_block as a variable, never as the constant True or False: numba
     # would compile _run_block once for each literal (about 25 s more on a first run)
     plain = _plain_block(b0, b1, P, FR, MECH)
-    if plain and _vector_block(b0, b1, FR, C, AI):
-        _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT, REC, rec_every,
-                          rec_offset)
+    if _vector_block(b0, b1, FR, C, AI):
+        _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, REC, rec_every,
+                          rec_offset, plain)
     elif plain:
         _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC,
                    rec_every, rec_offset, plain)

@@ -182,7 +182,11 @@ N_G = 14
 R_V0, R_V1 = 7, 7 + N_V                       # axis 0, axis 1
 R_K0, R_K1 = 7 + 2 * N_V, 7 + 2 * N_V + N_K
 R_G = 7 + 2 * N_V + 2 * N_K
-N_FROWS = R_G + N_G
+# the encoder's reading error of axis 0 and axis 1 this tick [turn] (plant [encoder_error];
+# 0 without one), computed before the axes' loops: a library call inside them would keep
+# them from vectorizing
+R_ENC_ERR = R_G + N_G
+N_FROWS = R_ENC_ERR + 2
 # int rows: per axis (W_), then per leg
 W_MODE, W_AXERR, W_CTRLERR, W_MOTERR, W_COUNTS = range(5)
 N_W = 5

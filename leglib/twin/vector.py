@@ -1,12 +1,14 @@
 """The vectorized path of the twin's kernel: a block of legs, structure of arrays.
 
-The common case of a sweep -- a plant without the unmodeled effects, every axis in position
-control or IDLE with its inputs passed through, no watchdog -- runs here: the block's state
-copied into rows by leg, then per tick one loop over the legs for the controllers and one
-for the mechanics, branch-free, which the compiler turns into SIMD code over 8 legs at a
-time. It does what the reference tick of :mod:`leglib.twin.kernel` does for such a block,
-the same operations in the same order, so a leg's numbers do not depend on its path
-(tests/twin checks it bit for bit).
+The common case of a sweep -- every axis in position control or IDLE with its inputs passed
+through, no watchdog -- runs here: the block's state copied into rows by leg, then per tick
+one loop over the legs for the controllers and, for a plain plant (no unmodeled effects),
+one for the mechanics, branch-free, which the compiler turns into SIMD code over 8 legs at
+a time. A plant with unmodeled effects keeps the vectorized controllers (the encoder's
+reading error computed beforehand, leg by leg) and steps its mechanics leg by leg
+(:func:`leglib.twin.mechanics._mechanics_leg`, the reference's). It does what the reference
+tick of :mod:`leglib.twin.kernel` does for such a block, the same operations in the same
+order, so a leg's numbers do not depend on its path (tests/twin checks it bit for bit).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from ..abort import (
     _oscillation_step,
 )
 from ..kernelmath import py_min, select
+from .effects import _encoder_error
 from .layout import (
     AXIS_ERROR_CONTROLLER_FAILED,
     AXIS_ERROR_MOTOR_FAILED,
@@ -56,6 +59,7 @@ from .layout import (
     CONTROL_MODE_POSITION,
     CONTROLLER_ERROR_OVERSPEED,
     CONTROLLER_ERROR_SPINOUT_DETECTED,
+    F_BELT_K,
     F_ENC_ON,
     G_BRAKE_I,
     G_BRAKE_ON,
@@ -129,6 +133,7 @@ from .layout import (
     R_AB,
     R_CODE,
     R_DEAD,
+    R_ENC_ERR,
     R_G,
     R_K0,
     R_K1,
@@ -187,8 +192,9 @@ from .layout import (
     W_CTRLERR,
     W_MODE,
     W_MOTERR,
+    X_PHI1,
 )
-from .mechanics import _at, _mechanics_plain
+from .mechanics import _at, _mechanics_leg, _mechanics_plain, _param_row
 from .rng import _normal
 from .stages import (
     brake_current,
@@ -214,8 +220,7 @@ from .stages import (
 
 @njit(cache=True)
 def _vector_block(b0, b1, FR, C, AI):
-    """Whether legs b0..b1-1 of a plain block (see :func:`_plain_block`) can take
-    :func:`_run_block_vector`: no encoder reading error, and every axis in position control
+    """Whether legs b0..b1-1 can take :func:`_run_block_vector`: every axis in position control
     (configured, and armed or IDLE) with its inputs passed through, no watchdog, and the
     controller's optional features at their defaults (velocity limit and overspeed check
     on, no gain scheduling, no circular setpoints), a calibrated current controller without
@@ -223,7 +228,7 @@ def _vector_block(b0, b1, FR, C, AI):
     or a virtual ODrive's step batch, which checks beforehand that they are out of reach:
     kernel._board_checks is not on this path)."""
     for b in range(b0, b1):
-        if FR[b, F_ENC_ON] > 0.0 or C[b, 0, C_VBUS_CHECKS] > 0.0:
+        if C[b, 0, C_VBUS_CHECKS] > 0.0:
             return False
         for a in range(2):
             mode = AI[b, a, I_MODE]
@@ -245,7 +250,7 @@ def _vector_block(b0, b1, FR, C, AI):
 
 @njit(cache=True, inline="always")
 def _axis_vector(i, a, FB, IB, q, w_joint, q_rest, rng, alive, dt, dirn, turns_per_rad, cpr, enc_noise,
-                 cur_noise, quantize, N, kt_true, r_phase, inv_vbus, fw056, a_half, inv_r, m_half):
+                 cur_noise, quantize, N, kt_true, r_phase, inv_vbus, fw056, a_half, inv_r, m_half, enc):
     """One tick of axis ``a`` (a constant) of leg ``i`` of a vectorized block, its joint at
     ``q``: what the per-leg tick of :func:`_run_block` does for an axis in position
     control, armed or IDLE, with passthrough inputs, the same operations in the same order,
@@ -255,6 +260,9 @@ def _axis_vector(i, a, FB, IB, q, w_joint, q_rest, rng, alive, dt, dirn, turns_p
     turns = dirn * (q - q_rest) * turns_per_rad
     rng1, nz = _normal(rng)
     raw = turns * cpr + enc_noise * nz
+    # the plant's reading error (row R_ENC_ERR, from :func:`_encoder_errors`), added as
+    # kernel._encoder_tick adds it; ``enc`` False: a block without one
+    raw = select(enc, raw + cpr * FB[_at(R_ENC_ERR + a, i)], raw)
     counts, counts_i = encoder_counts(raw, FB[_at(rk + K_OFF, i)], quantize)
     pe0 = FB[_at(rv + V_PE, i)]
     ve0 = FB[_at(rv + V_VE, i)]
@@ -406,7 +414,7 @@ def _stop_axis(i, a, FB, IB, fault, stop, motor_flag):
 
 
 @njit(cache=True, error_model="numpy")
-def _control_vector(k, dt, FB, IB, nb, DRV):
+def _control_vector(k, dt, FB, IB, nb, DRV, enc):
     """The controllers of a vectorized block for tick ``k``: one loop over its ``nb`` legs
     doing what the per-leg controller of :func:`_run_block` does for axes in position
     control or IDLE with passthrough inputs (the same operations in the same order,
@@ -433,7 +441,7 @@ def _control_vector(k, dt, FB, IB, nb, DRV):
             i, 0, FB, IB, select(axis0_on_joint0, q_joint0, q_joint1), select(axis0_on_joint0, w_joint0, w_joint1),
             select(axis0_on_joint0, q_rest_joint0, q_rest_joint1), np.uint64(IB[_at(R_RNG, i)]), alive, dt, dirn,
             turns_per_rad, cpr, enc_noise, cur_noise, quantize, N, kt_true, r_phase,
-            FB[_at(R_G + G_INV_VBUS, i)], FB[_at(R_G + G_FW056, i)] > 0.0, a_half, inv_r, m_half)
+            FB[_at(R_G + G_INV_VBUS, i)], FB[_at(R_G + G_FW056, i)] > 0.0, a_half, inv_r, m_half, enc)
         IB[_at(R_RNG, i)] = np.int64(rng)
         FB[_at(R_G + G_TAU_AXIS0, i)] = tau_axis0
         FB[_at(R_G + G_IBUS_AXES, i)] = ib0
@@ -446,7 +454,7 @@ def _control_vector(k, dt, FB, IB, nb, DRV):
             i, 1, FB, IB, select(axis0_on_joint0, q_joint1, q_joint0), select(axis0_on_joint0, w_joint1, w_joint0),
             select(axis0_on_joint0, q_rest_joint1, q_rest_joint0), np.uint64(IB[_at(R_RNG, i)]), alive, dt, dirn,
             turns_per_rad, cpr, enc_noise, cur_noise, quantize, N, kt_true, r_phase,
-            FB[_at(R_G + G_INV_VBUS, i)], FB[_at(R_G + G_FW056, i)] > 0.0, a_half, inv_r, m_half)
+            FB[_at(R_G + G_INV_VBUS, i)], FB[_at(R_G + G_FW056, i)] > 0.0, a_half, inv_r, m_half, enc)
         tau_axis0, code0 = FB[_at(R_G + G_TAU_AXIS0, i)], IB[_at(R_CODE, i)]
         ibus_sum = 0.0
         ibus_sum += FB[_at(R_G + G_IBUS_AXES, i)]
@@ -493,24 +501,90 @@ def _control_vector(k, dt, FB, IB, nb, DRV):
         IB[_at(R_AB + 1, i)] = select(first, code, ab_reason)
 
 
+@njit(cache=True, inline="always")
+def _sensed_rows(b, i, X, FR, FB):
+    """Rows R_Q.. of leg ``i`` (leg ``b``) of a block whose mechanics go leg by leg: the
+    angles and speeds the motors' encoders see (the rotors' with a compliant belt, else the
+    joints', as kernel._run_block reads them) and the time, from X (which holds the joints)."""
+    belt = FR[b, F_BELT_K] > 0.0
+    for j in range(2):
+        FB[_at(R_Q + 2 * j, i)] = X[b, X_PHI1 + 2 * j] if belt else X[b, 2 * j]
+        FB[_at(R_Q + 2 * j + 1, i)] = X[b, X_PHI1 + 2 * j + 1] if belt else X[b, 2 * j + 1]
+    FB[_at(R_Q + 4, i)] = X[b, 4]
+
+
 @njit(cache=True)
-def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT, REC, rec_every,
-                      rec_offset):
+def _encoder_errors(b0, nb, FB, IB, FR, DRV):
+    """Rows R_ENC_ERR of a block for this tick: each axis's encoder reading error
+    (effects._encoder_error) at the turns its encoder is at, computed as
+    kernel._encoder_tick computes them; 0 for a leg without one. A loop of its own: the
+    library's sines would keep the axes' loops from vectorizing."""
+    turns_per_rad = DRV[0] / (2.0 * math.pi)
+    dirn = DRV[2]
+    j0 = int(DRV[5])
+    for i in range(nb):
+        b = b0 + i
+        for a in range(2):
+            j = j0 if a == 0 else 1 - j0
+            e = 0.0
+            if FR[b, F_ENC_ON] > 0.0 and IB[_at(R_DEAD, i)] == 0:
+                turns = dirn * (FB[_at(R_Q + 2 * j, i)] - DRV[3 + j]) * turns_per_rad
+                e = _encoder_error(FR, b, turns)
+            FB[_at(R_ENC_ERR + a, i)] = e
+
+
+@njit(cache=True)
+def _mechanics_legs(k, dt, b0, nb, FB, IB, X, AI, P, FR, MECH, DRV, ABORT, TM, INV_VS, INV_VSM, tau2):
+    """The mechanics of a vectorized block whose plant has unmodeled effects: leg by leg,
+    the reference's :func:`_mechanics_leg` on X with the torques of rows R_TAU; a leg whose
+    accelerations came out non-finite is stopped as :func:`_run_block_vector` stops one of
+    a plain block. Then the rows R_Q.. read what the encoders will see next tick."""
+    for i in range(nb):
+        if IB[_at(R_DEAD, i)] != 0:
+            continue
+        b = b0 + i
+        tau2[0], tau2[1] = FB[_at(R_TAU, i)], FB[_at(R_TAU + 1, i)]
+        if _mechanics_leg(b, k, dt, X, AI, FR, MECH, DRV, ABORT, _param_row(P, b), tau2, TM[i], INV_VS[i],
+                          INV_VSM[i]):
+            IB[_at(R_AB, i)] = k
+            IB[_at(R_AB + 1, i)] = ABORT_NONFINITE
+            IB[_at(R_W0 + W_MODE, i)] = MODE_IDLE
+            IB[_at(R_W1 + W_MODE, i)] = MODE_IDLE
+            IB[_at(R_DEAD, i)] = 1
+        _sensed_rows(b, i, X, FR, FB)
+
+
+@njit(cache=True)
+def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, REC, rec_every,
+                      rec_offset, plain):
     """Legs b0..b1-1 of :func:`_run` when :func:`_vector_block` allows: the state copied
     into the block's rows, then per tick one loop over the legs for the controllers
-    (:func:`_control_vector`) and one for the mechanics (:func:`_mechanics_plain`), both
-    of which vectorize; the numbers are those of :func:`_run_block`."""
+    (:func:`_control_vector`) and, when ``plain`` (they share a plain plant,
+    :func:`_plain_block`), one for the mechanics (:func:`_mechanics_plain`), both of which
+    vectorize; else the mechanics leg by leg (:func:`_mechanics_legs`). The numbers are
+    those of :func:`_run_block`."""
     nb = b1 - b0
     FB = np.zeros(N_FROWS * LANES)
     IB = np.zeros(N_IROWS * LANES, np.int64)
+    enc = False
+    for b in range(b0, b1):
+        enc = enc or FR[b, F_ENC_ON] > 0.0
+    # the leg-by-leg mechanics' per-leg invariants and scratch, as kernel._run_block's
+    INV_VS, INV_VSM = np.empty(nb), np.empty(nb)
+    TM = np.zeros((nb, 2))
+    tau2 = np.empty(2)
     f_slots = (S_POS_EST, S_VEL_EST, S_INTEGRATOR, S_IQ, S_IQ_MEAS, S_COUNT_F, S_POS_SP, S_VEL_SP, S_TQ_SP,
                S_IBUS_MOTOR, S_TQ_OUT, S_IQ_SP, S_V_PREV, S_V_INT, S_MECH_P, S_ELEC_P, S_FOC_POWER, S_OSC,
                S_OSC + 1, S_OSC + 2, S_OSC + 3, S_OSC + 4, S_OSC + 5)
     w_slots = (I_MODE, I_AXIS_ERR, I_CTRL_ERR, I_MOTOR_ERR, I_COUNTS)
     for i in range(nb):
         b = b0 + i
-        for n in range(5):
-            FB[_at(R_Q + n, i)] = X[b, n]
+        if plain:
+            for n in range(5):
+                FB[_at(R_Q + n, i)] = X[b, n]
+        else:
+            _sensed_rows(b, i, X, FR, FB)
+        INV_VS[i], INV_VSM[i] = 1.0 / FR[b, 6], 1.0 / FR[b, 7]
         IB[_at(R_DEAD, i)] = 1 if ABORT[b, 1] == ABORT_NONFINITE else 0
         IB[_at(R_RNG, i)] = np.int64(RNG[b])
         for a in range(2):
@@ -566,7 +640,12 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT,
                         REC[b, r, 2] = FB[_at(R_V1 + V_CNTF, i)]
                         REC[b, r, 3] = FB[_at(R_V0 + V_IQM, i)]
                         REC[b, r, 4] = FB[_at(R_V1 + V_IQM, i)]
-        _control_vector(k, dt, FB, IB, nb, DRV)
+        if enc:
+            _encoder_errors(b0, nb, FB, IB, FR, DRV)
+        _control_vector(k, dt, FB, IB, nb, DRV, enc)
+        if not plain:
+            _mechanics_legs(k, dt, b0, nb, FB, IB, X, AI, P, FR, MECH, DRV, ABORT, TM, INV_VS, INV_VSM, tau2)
+            continue
         _mechanics_plain(dt, FB, IB, nb, P_plain, FR_plain)
         for i in range(nb):
             if IB[_at(R_NF, i)] != 0:
@@ -577,8 +656,9 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, DRV, RNG, ABORT,
                 IB[_at(R_DEAD, i)] = 1
     for i in range(nb):
         b = b0 + i
-        for n in range(5):
-            X[b, n] = FB[_at(R_Q + n, i)]
+        if plain:
+            for n in range(5):
+                X[b, n] = FB[_at(R_Q + n, i)]
         RNG[b] = np.uint64(IB[_at(R_RNG, i)])
         for a in range(2):
             rv = R_V0 if a == 0 else R_V1

@@ -378,12 +378,45 @@ def test_the_polled_path_on_the_twin_agrees_with_the_batched_path():
     assert all(int(dev.get(a, "current_state")) == 1 for a in (0, 1))
 
 
+def _leg_by_leg(st):
+    """``st`` with its boards checking the bus voltage against trip levels out of reach
+    (no source resistance, 0 V and inf): the same numbers, but kernel._board_checks is not
+    on the vectorized path, so its blocks run leg by leg (_run_block, the reference)."""
+    ref = st.copy()
+    ref.C[:, 0, L.C_VBUS_CHECKS] = 1.0
+    ref.C[:, 0, L.C_VBUS_R] = 0.0
+    ref.C[:, 0, L.C_UV_TRIP] = 0.0
+    ref.C[:, 0, L.C_OV_TRIP] = np.inf
+    return ref
+
+
+def _run_both(tw, start, P, FR, MECH, ticks=4000):
+    """``start`` run through the vectorized path and, from the same state, leg by leg:
+    ((state, record) vectorized, (state, record) leg by leg)."""
+    def run(st):
+        rec = np.zeros((st.batch, ticks // 10, 5))
+        _run_serial(ticks, tw.dt, st.X, st.AS, st.AI, st.C, P, FR, MECH, tw.DRV, st.RNG, st.ABORT,
+                    np.zeros((st.batch, 0, 2)), 1, rec, 10, 0, st.batch)
+        return st, rec
+    assert _vector_block(0, start.batch, FR, start.C, start.AI)
+    ref = _leg_by_leg(start)
+    assert not _vector_block(0, start.batch, FR, ref.C, ref.AI)
+    return run(start.copy()), run(ref)
+
+
+def _assert_same(vec, leg):
+    (st_vec, rec_vec), (st_leg, rec_leg) = vec, leg
+    np.testing.assert_array_equal(rec_vec, rec_leg)
+    for name in ("X", "AS", "AI", "ABORT", "RNG"):
+        np.testing.assert_array_equal(getattr(st_vec, name), getattr(st_leg, name), err_msg=name)
+
+
 def test_a_vectorized_block_gives_the_leg_by_leg_numbers():
     """A block of legs that share a plain plant, every axis in position control or IDLE,
     runs vectorized (_run_block_vector: controllers and mechanics each one loop over the
-    legs, branches turned into selects); a block holding one leg of another plant runs leg
-    by leg (_run_block). For the same legs both give the same numbers, bit for bit, through
-    every event the vectorized controller handles: noise, the safety abort, overspeed, a
+    legs, branches turned into selects); the same legs with their boards checking the bus
+    run leg by leg (_run_block). Both give the same numbers, bit for bit, through every
+    event the vectorized controller handles: noise, the safety abort, overspeed, a
     regenerative bus fault (both error styles), an axis left IDLE."""
     tw = Twin(seed=4)
     gains = np.array([[20, 0.02, 0.01], [50, 0.046, 0.001], [35, 0.1, 0.05], [200, 0.5, 5.0],
@@ -395,32 +428,71 @@ def test_a_vectorized_block_gives_the_leg_by_leg_numbers():
     start.C[6, 0, L.C_BRAKE_ON] = 0.0
     start.C[6, 0, L.C_REGEN_ERR_STYLE] = 1.0              # ... with 0.5.1's error flags
     start.AI[7, 1, L.I_MODE] = L.MODE_IDLE                # one axis left IDLE
-
-    def run(st, P, FR, block):
-        rec = np.zeros((st.batch, 400, 5))
-        _run_serial(4000, tw.dt, st.X, st.AS, st.AI, st.C, P, FR, np.zeros(st.batch, np.int64), tw.DRV,
-                      st.RNG, st.ABORT, np.zeros((st.batch, 0, 2)), 1, rec, 10, 0, block)
-        return st, rec
-
-    P = np.ascontiguousarray(np.broadcast_to(tw.P, (B + 1, tw.P.size)))
-    FR = np.ascontiguousarray(np.broadcast_to(tw.FR, (B + 1, tw.FR.size)))
-    FR[B, 0] *= 1.5   # one more leg, of another plant: its block is not plain
-    MECH = np.zeros(B + 1, np.int64)
-    mixed = start.take(list(range(B)) + [0])
-    assert _plain_block(0, B, P, FR, MECH) and _vector_block(0, B, FR, start.C, start.AI)
-    assert not _plain_block(0, B + 1, P, FR, MECH)
-    vec, rec_vec = run(start.copy(), P[:B], FR[:B], B)
-    leg, rec_leg = run(mixed, P, FR, B + 1)
+    P = np.ascontiguousarray(np.broadcast_to(tw.P, (B, tw.P.size)))
+    FR = np.ascontiguousarray(np.broadcast_to(tw.FR, (B, tw.FR.size)))
+    MECH = np.zeros(B, np.int64)
+    assert _plain_block(0, B, P, FR, MECH)
+    vec, leg = _run_both(tw, start, P, FR, MECH)
     # the events happened
-    assert (vec.ABORT[:, 1] != ABORT_NONE).sum() >= 1
-    assert vec.AI[1, 0, L.I_CTRL_ERR] & L.CONTROLLER_ERROR_OVERSPEED
-    assert vec.AI[2, 0, L.I_SYS_ERR] & L.ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT
-    assert vec.AI[6, 0, L.I_MOTOR_ERR] & L.MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT
-    assert vec.AI[7, 0, L.I_MODE] == L.MODE_POSITION and vec.AI[7, 1, L.I_MODE] == L.MODE_IDLE
+    st = vec[0]
+    assert (st.ABORT[:, 1] != ABORT_NONE).sum() >= 1
+    assert st.AI[1, 0, L.I_CTRL_ERR] & L.CONTROLLER_ERROR_OVERSPEED
+    assert st.AI[2, 0, L.I_SYS_ERR] & L.ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT
+    assert st.AI[6, 0, L.I_MOTOR_ERR] & L.MOTOR_ERROR_DC_BUS_OVER_REGEN_CURRENT
+    assert st.AI[7, 0, L.I_MODE] == L.MODE_POSITION and st.AI[7, 1, L.I_MODE] == L.MODE_IDLE
     # and came out the same
-    np.testing.assert_array_equal(rec_vec, rec_leg[:B])
-    for name in ("X", "AS", "AI", "ABORT", "RNG"):
-        np.testing.assert_array_equal(getattr(vec, name), getattr(leg, name)[:B], err_msg=name)
+    _assert_same(vec, leg)
+
+
+def _encoder_error_only():
+    bench = load_plant("bench")
+    return load_plant("default", encoder_error1=bench.encoder_error1, encoder_error2=bench.encoder_error2,
+                      encoder_phase1=bench.encoder_phase1, encoder_phase2=bench.encoder_phase2)
+
+
+@pytest.mark.parametrize("name", ["bench", "belt", "cogging", "lugre", "encoder_error", "mixed"])
+def test_a_vectorized_block_with_unmodeled_effects_gives_the_leg_by_leg_numbers(name):
+    """Plants with unmodeled effects take the vectorized controllers too (the encoder's
+    reading error computed before the axes' loop; the encoder on the rotor with a compliant
+    belt) and step their mechanics leg by leg (_mechanics_leg; the vectorized loop when
+    only the encoder errs): the same numbers as the
+    reference, bit for bit, with the safety abort, an overspeed and an axis left IDLE among
+    them. "mixed": a block of legs of different plants (belt, cogging, LuGre, encoder error,
+    plain, independent inertias)."""
+    gains = np.array([[20, 0.02, 0.01], [50, 0.046, 0.001], [35, 0.1, 0.05], [200, 0.5, 5.0],
+                      [50, 0.002, 0.08], [80, 0.03, 0.2], [12, 0.2, 0.0], [60, 0.06, 0.02]])
+    B = len(gains)       # (50, 0.002, 0.08): an oscillation the abort stops at about tick 3750
+    if name == "mixed":
+        plants = [load_plant(n) for n in ("bench", "belt", "cogging", "lugre")]
+        plants += [_encoder_error_only(), load_plant("default"), load_plant("default").replace(mechanism="independent"),
+                   load_plant("bench")]
+        twins = [Twin(p, seed=4) for p in plants]
+    else:
+        twins = [Twin(_encoder_error_only() if name == "encoder_error" else name, seed=4)] * B
+    tw = twins[0]
+    start = tw.step_batch(gains, duration=0.0)["final"]
+    P = np.ascontiguousarray(np.stack([t.P for t in twins]))
+    FR = np.ascontiguousarray(np.stack([t.FR for t in twins]))
+    MECH = np.array([t.mech for t in twins], np.int64)
+    for i, t in enumerate(twins):      # each leg starts at rest on its own plant
+        rest = t.rest_state()
+        start.X[i] = rest.X[0]
+    start.C[1, :, L.C_VEL_TOL] = 0.02                     # overspeed at once
+    start.AI[7, 1, L.I_MODE] = L.MODE_IDLE                # one axis left IDLE
+    # the encoder's error alone leaves the mechanics plain (one vectorized loop)
+    assert _plain_block(0, B, P, FR, MECH) == (name == "encoder_error")
+    vec, leg = _run_both(tw, start, P, FR, MECH)
+    st = vec[0]
+    assert (st.ABORT[:, 1] != ABORT_NONE).sum() >= 1
+    assert st.AI[1, 0, L.I_CTRL_ERR] & L.CONTROLLER_ERROR_OVERSPEED
+    assert st.AI[7, 0, L.I_MODE] == L.MODE_POSITION and st.AI[7, 1, L.I_MODE] == L.MODE_IDLE
+    moved = np.abs(st.X[:, L.X_Q1] - start.X[:, L.X_Q1])
+    assert (moved > 1e-3).sum() >= 4                       # the legs moved
+    if name in ("bench", "belt"):                          # the rotors turned apart from the joints
+        assert np.any(st.X[:, L.X_PHI1] != st.X[:, L.X_Q1])
+    if name in ("bench", "lugre"):
+        assert np.any(st.X[:, L.X_Z1] != 0.0)
+    _assert_same(vec, leg)
 
 
 def test_a_block_whose_board_checks_its_bus_runs_leg_by_leg():
