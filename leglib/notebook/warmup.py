@@ -19,11 +19,15 @@ The groups are chosen so that no two processes compile the same heavy function:
 Every call in a group is an ordinary use of leglib, so whatever a group compiles is what
 that use needs. Whether the cache is current is read from a stamp written after a
 successful compile (:func:`stamp_path`): the numba version and the size and modification
-time of every source file with cached kernels -- what numba's own cache index checks.
+time of every source file with cached kernels and of the leglib files they import from.
+numba's own index checks only the file a
+kernel is defined in, not the files it inlines or takes constants from; so when any of them
+changed, the compile first removes leglib's cached kernels (:func:`purge_cache`).
 """
 
 from __future__ import annotations
 
+import ast
 import json
 import os
 import re
@@ -101,20 +105,72 @@ def stamp_path() -> Path:
 _CACHED = re.compile(r"^\s*@(numba\.)?(njit|jit)\(.*cache=True", re.M)   # a decorator of a cached kernel
 
 
+def _imported(rel: Path) -> set:
+    """The leglib source files that the file ``rel`` (relative to the package) imports from
+    (relative imports: a module, a package's ``__init__``, or a submodule named)."""
+    tree = ast.parse((PACKAGE / rel).read_text(encoding="utf-8", errors="replace"))
+    out = set()
+    for node in ast.walk(tree):
+        if not (isinstance(node, ast.ImportFrom) and node.level):
+            continue
+        base = rel.parent
+        for _ in range(node.level - 1):
+            base = base.parent
+        mod = base.joinpath(*(node.module or "").split(".")) if node.module else base
+        subs = [mod / f"{a.name}.py" for a in node.names]
+        if node.module is None:   # `from .. import x`: x a submodule, else a name of the package
+            cands = [c if (PACKAGE / c).is_file() else mod / "__init__.py" for c in subs]
+        else:
+            cands = [mod.with_suffix(".py"), mod / "__init__.py", *subs]
+        out |= {c for c in cands if (PACKAGE / c).is_file()}
+    return out
+
+
 def _sources() -> dict:
-    """Size and modification time of every leglib source file with cached kernels."""
+    """Size and modification time of every leglib source file with cached kernels and of
+    every leglib file they import from, and so on (constants, inlined helpers)."""
+    todo = {path.relative_to(PACKAGE) for path in PACKAGE.rglob("*.py")
+            if _CACHED.search(path.read_text(encoding="utf-8", errors="replace"))}
+    seen: set = set()
+    while todo:
+        rel = todo.pop()
+        seen.add(rel)
+        todo |= _imported(rel) - seen
     out = {}
-    for path in sorted(PACKAGE.rglob("*.py")):
-        text = path.read_text(encoding="utf-8", errors="replace")
-        if _CACHED.search(text):
-            st = path.stat()
-            out[str(path.relative_to(PACKAGE))] = [st.st_size, st.st_mtime_ns]
+    for rel in sorted(seen):
+        st = (PACKAGE / rel).stat()
+        out[str(rel)] = [st.st_size, st.st_mtime_ns]
     return out
 
 
 def _fingerprint() -> dict:
     import numba  # load time: only to name its version
     return {"numba": numba.__version__, "python": sys.version.split()[0], "sources": _sources()}
+
+
+def cached_files() -> list[Path]:
+    """leglib's compiled kernels in numba's cache (index ``.nbi`` and data ``.nbc`` files)."""
+    env = os.environ.get("NUMBA_CACHE_DIR")
+    if env:   # numba mirrors the source's directory under it
+        return sorted((Path(env) / PACKAGE.relative_to(PACKAGE.anchor)).rglob("*.nb[ic]"))
+    return sorted(PACKAGE.rglob("__pycache__/*.nb[ic]"))
+
+
+def purge_cache() -> int:
+    """Remove leglib's compiled kernels from numba's cache; returns how many files went.
+
+    numba checks a cached kernel against its own source file only: a kernel compiled
+    before an edit of a file it inlines or takes constants from (``twin/layout.py``,
+    ``twin/effects.py``, ``kernelmath.py``, ...) would load unchanged and run the old code.
+    So when any kernel source changed since the last compile, every kernel is compiled anew."""
+    n = 0
+    for path in cached_files():
+        try:
+            path.unlink()
+            n += 1
+        except OSError:
+            pass
+    return n
 
 
 def up_to_date() -> bool:
@@ -136,6 +192,8 @@ def compile_kernels(groups=GROUPS, stream=None) -> dict:
     if unknown:
         raise ValueError(f"unknown kernel group(s) {unknown}; known: {list(GROUPS)}")
     fingerprint = _fingerprint()   # of the sources as they are when the compiles start
+    if not up_to_date():
+        purge_cache()
     print(f"[compile] numba kernels, {len(groups)} groups at once (about a minute on 2 cores with an "
           f"empty cache, a few seconds with a current one): {', '.join(groups)}", file=stream, flush=True)
     t0 = time.monotonic()

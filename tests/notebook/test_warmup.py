@@ -14,19 +14,22 @@ def fake_package(tmp_path, monkeypatch):
     """A package of two files, one with a cached kernel, and a cache directory of its own."""
     pkg = tmp_path / "pkg"
     pkg.mkdir()
-    (pkg / "kernels.py").write_text("@njit(cache=True)\ndef f(): pass\n")
+    (pkg / "kernels.py").write_text("from .consts import N\n@njit(cache=True)\ndef f(): return N\n")
+    (pkg / "consts.py").write_text("N = 3\n")
     (pkg / "plain.py").write_text("def g(): pass\n")
     monkeypatch.setattr(warmup, "PACKAGE", pkg)
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
     return pkg
 
 
-def test_the_sources_are_the_files_with_cached_kernels():
+def test_the_sources_are_the_files_with_cached_kernels_and_what_they_import():
+    """The kernels' files, and the files they take constants and inlined helpers from (an
+    edit of twin/layout.py must make the kernels compile anew, though it has no cached
+    kernel of its own); not the notebook layer."""
     sources = warmup._sources()
-    assert "twin/kernel.py" in sources and "identify/fastfit.py" in sources
-    assert "notebook/warmup.py" not in sources and "units.py" not in sources
-    for rel in sources:
-        assert "cache=True" in (warmup.PACKAGE / rel).read_text()
+    assert {"twin/kernel.py", "identify/fastfit.py", "twin/vector.py", "twin/effects.py"} <= set(sources)
+    assert "twin/layout.py" in sources and "kernelmath.py" in sources
+    assert not any(rel.startswith("notebook/") for rel in sources)
 
 
 def test_the_stamp_goes_stale_when_a_kernel_source_changes(fake_package):
@@ -37,6 +40,9 @@ def test_the_stamp_goes_stale_when_a_kernel_source_changes(fake_package):
     assert warmup.up_to_date()
     (fake_package / "plain.py").write_text("def g(): return 1\n")   # no kernel in it
     assert warmup.up_to_date()
+    (fake_package / "consts.py").write_text("N = 4\n")                # a constant a kernel uses
+    assert not warmup.up_to_date()
+    warmup.stamp_path().write_text(__import__("json").dumps(warmup._fingerprint()))
     st = (fake_package / "kernels.py").stat()
     os.utime(fake_package / "kernels.py", ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))   # an edit, a pull
     assert not warmup.up_to_date()
@@ -82,3 +88,37 @@ def test_a_compile_prints_a_line_per_group_and_writes_the_stamp(fake_package, mo
     assert sorted(line.split()[1] for line in out[1:]) == sorted(warmup.GROUPS)
     assert all("ready after" in line for line in out[1:])
     assert warmup.up_to_date()
+
+
+def test_a_stale_cache_is_purged_before_compiling(fake_package, monkeypatch):
+    """An edit of any kernel source (a constant in layout.py, an inlined helper) removes every
+    cached kernel first: numba checks a kernel against its own file only, and would load the
+    old machine code of a kernel whose file did not change."""
+    cache = fake_package.parent / "cache"
+    mirrored = cache / fake_package.relative_to(fake_package.anchor) / "twin"
+    mirrored.mkdir(parents=True)
+    old = [mirrored / "kernel._run-100.py311.nbi", mirrored / "kernel._run-100.py311.1.nbc"]
+    for p in old:
+        p.write_bytes(b"old")
+    (mirrored / "unrelated.txt").write_text("kept")
+    assert warmup.cached_files() == sorted(old)
+    monkeypatch.setattr(warmup, "_RUN", {**warmup._RUN, "noop": None})
+    monkeypatch.setattr(warmup, "WHAT", {**warmup.WHAT, "noop": "nothing"})
+    monkeypatch.setattr(warmup.subprocess, "Popen", lambda *a, **k: _Done())
+    warmup.compile_kernels(("noop",), stream=io.StringIO())
+    assert not any(p.exists() for p in old) and (mirrored / "unrelated.txt").exists()
+    # current: nothing purged
+    warmup.stamp_path().write_text(__import__("json").dumps(warmup._fingerprint()))
+    for p in old:
+        p.write_bytes(b"new")
+    warmup.compile_kernels(("noop",), stream=io.StringIO())
+    assert all(p.exists() for p in old)
+
+
+class _Done:
+    """A finished group process (for the purge test: nothing is compiled)."""
+    returncode = 0
+    stdout = io.StringIO("")
+
+    def poll(self):
+        return 0
