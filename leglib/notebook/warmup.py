@@ -33,6 +33,7 @@ import os
 import re
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -197,7 +198,9 @@ def compile_kernels(groups=GROUPS, stream=None) -> dict:
     print(f"[compile] numba kernels, {len(groups)} groups at once (about a minute on 2 cores with an "
           f"empty cache, a few seconds with a current one): {', '.join(groups)}", file=stream, flush=True)
     t0 = time.monotonic()
-    procs = {g: subprocess.Popen([sys.executable, "-m", "leglib.notebook.warmup", g], stdout=subprocess.PIPE,
+    # each group's output into a file (a pipe read only at the end could fill and stall it)
+    outs = {g: tempfile.TemporaryFile("w+") for g in groups}
+    procs = {g: subprocess.Popen([sys.executable, "-m", "leglib.notebook.warmup", g], stdout=outs[g],
                                  stderr=subprocess.STDOUT, text=True) for g in groups}
     times, failed = {}, {}
     pending = dict(procs)
@@ -205,7 +208,9 @@ def compile_kernels(groups=GROUPS, stream=None) -> dict:
         for g, p in list(pending.items()):
             if p.poll() is None:
                 continue
-            out = p.stdout.read()
+            outs[g].seek(0)
+            out = outs[g].read()
+            outs[g].close()
             del pending[g]
             if p.returncode:
                 failed[g] = out[-3000:]

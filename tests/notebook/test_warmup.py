@@ -118,7 +118,6 @@ def test_a_stale_cache_is_purged_before_compiling(fake_package, monkeypatch):
 class _Done:
     """A finished group process (for the purge test: nothing is compiled)."""
     returncode = 0
-    stdout = io.StringIO("")
 
     def poll(self):
         return 0
