@@ -581,6 +581,20 @@ def _step_abort(b, a, mode, pe, C, AS):
 
 
 @njit(cache=True, inline="always")
+def _motor_failed(b, a, i, motor_error, AS, AI, FB, DRV):
+    """A fault in the motor's update (the current trip, motor.cpp:631-644; a NaN modulation,
+    foc.cpp:31-32): its error and the axis's MOTOR_FAILED set, the axis disarmed at once --
+    no current, no torque on its joint, no bus current."""
+    AI[b, a, I_MOTOR_ERR] |= motor_error
+    AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
+    AI[b, a, I_MODE] = MODE_IDLE
+    AS[b, a, S_IQ] = 0.0
+    AS[b, a, S_V_PREV] = 0.0
+    FB[_at(R_TAU + _joint_of(a, DRV), i)] = 0.0
+    AS[b, a, S_IBUS_MOTOR] = 0.0
+
+
+@njit(cache=True, inline="always")
 def _motor_tick(b, a, i, torque, ve, w_joint, rng, C, AS, AI, FB, DRV, inv_kt, inv_vbus, cc_kp, cc_ki_dt, vmax,
                 a_half, inv_r, m_half):
     """motor.cpp:513-594 and foc.cpp:120-160 with the motor: the torque's current setpoint,
@@ -597,13 +611,7 @@ def _motor_tick(b, a, i, torque, ve, w_joint, rng, C, AS, AI, FB, DRV, inv_kt, i
     iq_meas = i0 + DRV[7] * nz
     AS[b, a, S_IQ_MEAS] = iq_meas
     if current_violation(iq_meas, C[b, a, C_CURRENT_LIM], C[b, a, C_MAX_CURRENT], C[b, a, C_CURRENT_LIM_MARGIN]):
-        AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_CURRENT_LIMIT_VIOLATION
-        AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
-        AI[b, a, I_MODE] = MODE_IDLE
-        AS[b, a, S_IQ] = 0.0
-        AS[b, a, S_V_PREV] = 0.0
-        FB[_at(R_TAU + _joint_of(a, DRV), i)] = 0.0
-        AS[b, a, S_IBUS_MOTOR] = 0.0
+        _motor_failed(b, a, i, MOTOR_ERROR_CURRENT_LIMIT_VIOLATION, AS, AI, FB, DRV)
         return rng, 0.0
     # feed-forwards (motor.cpp:567-586): the back-EMF from the estimated speed, R * Iq
     v_ff = 0.0
@@ -615,13 +623,7 @@ def _motor_tick(b, a, i, torque, ve, w_joint, rng, C, AS, AI, FB, DRV, inv_kt, i
     AS[b, a, S_V_INT] = integ
     AS[b, a, S_FOC_POWER] = 1.5 * v * iq_meas     # foc.cpp:175-179: vbus x (mod . Idq)
     if not v == v:        # foc.cpp:31-32 (gains from an uncalibrated R and L): disarmed
-        AI[b, a, I_MOTOR_ERR] |= MOTOR_ERROR_MODULATION_IS_NAN
-        AI[b, a, I_AXIS_ERR] |= AXIS_ERROR_MOTOR_FAILED
-        AI[b, a, I_MODE] = MODE_IDLE
-        AS[b, a, S_IQ] = 0.0
-        AS[b, a, S_V_PREV] = 0.0
-        FB[_at(R_TAU + _joint_of(a, DRV), i)] = 0.0
-        AS[b, a, S_IBUS_MOTOR] = 0.0
+        _motor_failed(b, a, i, MOTOR_ERROR_MODULATION_IS_NAN, AS, AI, FB, DRV)
         return rng, 0.0
     # the motor's back-EMF: its flux linkage (2/3) kt / pole_pairs times the electrical speed
     e_bemf = (2.0 / 3.0) * DRV[8] * (DRV[2] * DRV[0] * w_joint)
