@@ -421,6 +421,21 @@ def _peaks(x, min_prominence):
     return out[:no]
 
 
+@njit(cache=True, inline="always")
+def _grid_and_bounds(t, n):
+    """The sample spacing when ``t`` (starting at 0) is a uniform grid to 1e-9 of its spacing
+    (the model then advances by recurrence), else 0; and the parameters' bounds (zeta, wn,
+    gain, offset, delay: the delay within the first half of the record)."""
+    dt = t[n - 1] / (n - 1)
+    for i in range(n):
+        if abs(t[i] - i * dt) > 1e-9 * dt:
+            dt = 0.0
+            break
+    lo = np.array([ZETA_MIN, 1e-2, -np.inf, -np.inf, 0.0])
+    hi = np.array([ZETA_MAX, 1e5, np.inf, np.inf, 0.5 * t[n - 1]])
+    return dt, lo, hi
+
+
 @njit(cache=True)
 def _fit_one(t_in, y, out):
     """Identify one response; fills ``out`` (N_OUT,) and returns the status code."""
@@ -497,14 +512,7 @@ def _fit_one(t_in, y, out):
         starts[ns, 1] = 1.8 / max(t50, 1e-3) * (1.0 + 0.6 * z)
         ns += 1
 
-    # a uniform grid (to 1e-9 of its spacing) lets the model advance by recurrence
-    dt = t[n - 1] / (n - 1)
-    for i in range(n):
-        if abs(t[i] - i * dt) > 1e-9 * dt:
-            dt = 0.0
-            break
-    lo = np.array([ZETA_MIN, 1e-2, -np.inf, -np.inf, 0.0])
-    hi = np.array([ZETA_MAX, 1e5, np.inf, np.inf, 0.5 * t[n - 1]])
+    dt, lo, hi = _grid_and_bounds(t, n)
     ym = np.mean(y)
     sst = 0.0
     for i in range(n):
@@ -568,13 +576,7 @@ def _refit_one(t_in, y, p0, out):
     if n < 20:
         return
     t = t_in - t_in[0]
-    dt = t[n - 1] / (n - 1)
-    for i in range(n):
-        if abs(t[i] - i * dt) > 1e-9 * dt:
-            dt = 0.0
-            break
-    lo = np.array([ZETA_MIN, 1e-2, -np.inf, -np.inf, 0.0])
-    hi = np.array([ZETA_MAX, 1e5, np.inf, np.inf, 0.5 * t[n - 1]])
+    dt, lo, hi = _grid_and_bounds(t, n)
     p = np.empty(5)
     for a in range(5):
         p[a] = min(max(p0[a], lo[a]), hi[a])

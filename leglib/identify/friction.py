@@ -332,13 +332,6 @@ def fit_friction(t, torque, velocity=None, position=None, inertia: float | None 
     need = min(MIN_DIRECTION_SAMPLES, max(3, t.size // 20))
     pos_ok = int(np.sum(v > 3 * eps)) >= need
     neg_ok = int(np.sum(v < -3 * eps)) >= need
-    if pos_ok and neg_ok:
-        # the mean Coulomb's error from the two directions' (independent to first order)
-        stderr["coulomb"] = float(0.5 * math.sqrt(max(cov[i_p, i_p] + cov[i_n, i_n] + 2 * cov[i_p, i_n], 0)))
-    elif pos_ok or neg_ok:
-        stderr["coulomb"] = stderr["coulomb_pos" if pos_ok else "coulomb_neg"]
-    else:
-        stderr["coulomb"] = math.nan
     why = _single_joint_identifiability(t, tau, v, eps, need, inertia is None,
                                         {"coulomb_pos": cp, "coulomb_neg": cn, "viscous": b})
     pos_ok = pos_ok and "coulomb_pos" not in why
