@@ -18,6 +18,7 @@ from .dynamics import (
                          forward_dynamics,
                          friction_vector,
                          gravity_torque,
+                         held_torque_stepper,
                          mass_matrix,
                          simulate,
                          simulate_torque_table,
@@ -39,6 +40,6 @@ from .terms import COULOMB_VELOCITY, MODELS, STATE_NAMES, param_vector
 __all__ = ["MODELS", "STATE_NAMES", "COULOMB_VELOCITY", "param_vector", "lower_link_angles",
            "foot_position", "inverse_kinematics", "thesis_foot_height", "LISTING_LENGTH",
            "thesis_listing_height", "zeroed_degrees", "leg_length", "workspace_grid",
-           "friction_vector", "simulate_torque_table", "mass_matrix", "gravity_torque",
+           "friction_vector", "simulate_torque_table", "held_torque_stepper", "mass_matrix", "gravity_torque",
            "bias_torque", "energy", "forward_dynamics", "equilibrium_torque", "simulate",
            "linearize", "THESIS_A_PRINTED", "THESIS_B", "THESIS_A", "compare_models"]

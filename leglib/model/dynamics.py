@@ -59,6 +59,29 @@ def simulate_torque_table(leg: LegParams, x0, tau, table_dt: float, substeps: in
     return out
 
 
+def held_torque_stepper(leg: LegParams, period: float, substeps: int, model: str = "fivebar", friction=None):
+    """A function ``step(x, tau) -> x_next``: the state (4,) one ``period`` later under the
+    joint torques ``tau`` (2,) held over it, in ``substeps`` steps -- what
+    :func:`simulate_torque_table` gives for a table of one torque, with the leg's
+    parameters, the friction vector and the buffers prepared once (a sampled closed loop
+    calls it every period). The next state is NaN where the model left its valid
+    configuration."""
+    mid = MODELS.index(_check_model(model))
+    P = param_vector(leg)
+    F = friction_vector(leg) if friction is None else np.asarray(friction, dtype=float)
+    h = period / substeps
+    tau_rows = np.empty((substeps + 1, 2))
+    out = np.empty((substeps + 1, 4))
+
+    def step(x, tau):
+        tau_rows[:] = tau
+        if _simulate_table(mid, P, F, np.asarray(x, dtype=float), tau_rows, h, 1, out) < substeps + 1:
+            return np.full(4, np.nan)
+        return out[-1].copy()
+
+    return step
+
+
 def _terms(leg, q1, q2, dq1=0.0, dq2=0.0, model="fivebar"):
     mid = MODELS.index(_check_model(model))
     shape, (a, b, c, d) = _flat(q1, q2, dq1, dq2)

@@ -194,3 +194,24 @@ def test_foot_positions_of_many_points_are_those_of_one_thread(leg, monkeypatch)
     one = M.foot_position(leg, q1, q2)
     for a, b in zip(many, one):
         assert np.array_equal(a, b, equal_nan=True)
+
+
+@pytest.mark.parametrize("model", ["fivebar", "parallelogram"])
+def test_a_held_torque_step_is_the_torque_tables_last_row(leg, model):
+    """held_torque_stepper (the sampled closed loop's plant) gives what simulate_torque_table
+    gives for the same held torque, bit for bit, period after period; NaN once the five-bar
+    leaves its valid configuration (the parallelogram model has no singular one)."""
+    period, substeps = 0.002, 16
+    step = M.held_torque_stepper(leg, period, substeps, model=model)
+    x = np.array([leg.q1, 0.3, leg.q2, -0.2])
+    for tau in ([0.05, -0.02], [-0.1, 0.08], [0.0, 0.0]):
+        table = M.simulate_torque_table(leg, x, np.tile(tau, (substeps + 1, 1)), period / substeps, substeps=1,
+                                        model=model)
+        nxt = step(x, np.array(tau))
+        assert np.array_equal(nxt, table[-1]) and not np.array_equal(nxt, x)
+        x = nxt
+    if model == "fivebar":   # driven through the five-bar's singular configuration: NaN, as the table's rows
+        wild = np.array([leg.q1, -2000.0, leg.q2, 2000.0])
+        table = M.simulate_torque_table(leg, wild, np.zeros((substeps + 1, 2)), period / substeps, substeps=1,
+                                        model=model)
+        assert np.isnan(table[-1]).all() and np.isnan(step(wild, np.zeros(2))).all()
