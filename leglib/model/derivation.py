@@ -22,6 +22,10 @@ compiled kernel both call those functions, so the two can never disagree.
 
 from __future__ import annotations
 
+import hashlib
+import os
+import pickle
+import tempfile
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -128,8 +132,56 @@ def _lagrange(name, q, positions, rotations, p, c, constraint=None) -> Derivatio
                       V=sp.simplify(V), Cd=c, params=p, constraint=constraint)
 
 
+def cache_path(name: str) -> Path:
+    """Where the derivation of model ``name`` is kept between processes: beside this file's
+    bytecode, keyed by this file's content and sympy's version (a derivation is a function
+    of the two), as Python keeps ``.pyc`` files."""
+    key = hashlib.sha256(Path(__file__).read_bytes() + sp.__version__.encode()).hexdigest()[:16]
+    return Path(__file__).with_name("__pycache__") / f"derivation-{name}-{key}.pickle"
+
+
+def _kept(name: str, derive) -> Derivation:
+    """``derive()``, or its result from an earlier process (:func:`cache_path`). sympy's
+    simplification takes seconds a model (about 6 s for both on 2 cores), every notebook
+    01 and every batch run of it paid that. A cache that cannot be read is derived again
+    and rewritten; one that cannot be written (a read-only install) is left out."""
+    path = cache_path(name)
+    try:
+        kept = pickle.loads(path.read_bytes())
+        if isinstance(kept, Derivation) and kept.name == name:
+            return kept
+    except (OSError, EOFError, pickle.UnpicklingError, AttributeError, ImportError, TypeError, ValueError):
+        pass
+    d = derive()
+    try:
+        path.parent.mkdir(exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        try:
+            with os.fdopen(fd, "wb") as f:
+                f.write(pickle.dumps(d))
+            os.replace(tmp, path)   # whole or not at all: readers never see a part
+        finally:
+            Path(tmp).unlink(missing_ok=True)
+    except OSError:
+        pass
+    return d
+
+
 @lru_cache(maxsize=None)
 def derive_parallelogram() -> Derivation:
+    """Model (a): the thesis's parallelogram five-bar (eqs. 5.1-5.7, Spong). Derived once
+    for this file's content and sympy's version (:func:`cache_path`)."""
+    return _kept("parallelogram", _derive_parallelogram)
+
+
+@lru_cache(maxsize=None)
+def derive_fivebar() -> Derivation:
+    """Model (b): the exact coaxial five-bar in maximal coordinates (q1, q2, phi3, phi4).
+    Derived once for this file's content and sympy's version (:func:`cache_path`)."""
+    return _kept("fivebar", _derive_fivebar)
+
+
+def _derive_parallelogram() -> Derivation:
     """Model (a): the thesis's parallelogram five-bar (eqs. 5.1-5.7, Spong)."""
     p, c = _symbols()
     q1, q2 = sp.symbols("q1 q2", real=True)
@@ -142,8 +194,7 @@ def derive_parallelogram() -> Derivation:
     return _lagrange("parallelogram", [q1, q2], positions, rotations, p, c)
 
 
-@lru_cache(maxsize=None)
-def derive_fivebar() -> Derivation:
+def _derive_fivebar() -> Derivation:
     """Model (b): the exact coaxial five-bar in maximal coordinates (q1, q2, phi3, phi4)."""
     p, c = _symbols()
     q1, q2, phi3, phi4 = sp.symbols("q1 q2 phi3 phi4", real=True)

@@ -33,3 +33,34 @@ def test_christoffel_form_is_skew_symmetric():
         Ddot = sp.Matrix(n, n, lambda i, j: sum(d.D[i, j].diff(d.q[k]) * d.dq[k] for k in range(n)))
         N = Ddot - 2 * d.C
         assert sp.simplify(N + N.T) == sp.zeros(n, n)
+
+
+def test_a_derivation_is_kept_between_processes_and_a_bad_copy_derived_again(tmp_path, monkeypatch):
+    """derive_* keep their result beside the bytecode, keyed by the derivation's source and
+    sympy's version; a later process reads it back whole (every field the same
+    expression); a copy that cannot be read is derived again and rewritten."""
+    fresh = derivation.derive_parallelogram()
+    path = tmp_path / "__pycache__" / "derivation-parallelogram-key.pickle"
+    monkeypatch.setattr(derivation, "cache_path", lambda name: path)
+    calls = []
+
+    def derive():
+        calls.append(1)
+        return fresh
+
+    assert derivation._kept("parallelogram", derive) is fresh and calls == [1] and path.is_file()
+    back = derivation._kept("parallelogram", derive)
+    assert calls == [1] and back is not fresh
+    for field in ("q", "dq", "D", "C", "h", "G", "T", "V", "constraint"):
+        assert sp.srepr(getattr(back, field)) == sp.srepr(getattr(fresh, field)), field
+    assert back.equations_of_motion() == fresh.equations_of_motion()
+    path.write_bytes(b"not a pickle")
+    assert derivation._kept("parallelogram", derive) is fresh and calls == [1, 1]
+    assert derivation._kept("parallelogram", derive) is not fresh and calls == [1, 1]
+
+
+def test_the_cache_key_follows_the_source_and_sympy(monkeypatch):
+    key = derivation.cache_path("fivebar")
+    assert key.parent.name == "__pycache__" and key != derivation.cache_path("parallelogram")
+    monkeypatch.setattr(sp, "__version__", sp.__version__ + ".other")
+    assert derivation.cache_path("fivebar") != key
