@@ -17,7 +17,6 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 from scipy.optimize import least_squares
-from scipy.signal import savgol_filter
 
 from .. import checks
 from ..errors import IdentificationError
@@ -73,6 +72,8 @@ def derivative(t, x, order: int = 1, window: float | None = None) -> np.ndarray:
     order : 1 or 2
     window : smoothing window [s] (default: 2 % of the record, at least 9 samples)
     """
+    from scipy.signal import savgol_filter  # load time: scipy.signal, 0.6 s
+
     t = np.asarray(t, dtype=float)
     x = np.asarray(x, dtype=float)
     dt = float(np.median(np.diff(t)))

@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 from statistics import NormalDist
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from .. import checks, plots
 from ..errors import IdentificationError
@@ -395,6 +394,8 @@ def sample_noise(y) -> float:
     fit's weight of the sample itself (white noise of standard deviation s leaves a residual
     of s sqrt(1 - h0)). The median keeps the step's onset, where the local cubic does not
     follow, from counting as noise. 0 for a record shorter than the window."""
+    from scipy.signal import savgol_filter  # load time: scipy.signal, 0.6 s
+
     y = np.asarray(y, float)
     if y.size < NOISE_WINDOW:
         return 0.0

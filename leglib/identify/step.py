@@ -33,7 +33,6 @@ from dataclasses import dataclass, field
 from statistics import NormalDist
 
 import numpy as np
-from scipy.signal import find_peaks, savgol_filter
 
 from .. import checks, plots
 from ..errors import IdentificationError
@@ -142,6 +141,8 @@ def _validate(t, y):
 
 
 def _smooth(y):
+    from scipy.signal import savgol_filter  # load time: scipy.signal, 0.6 s
+
     n = y.size
     win = max(5, (n // 60) | 1)
     return savgol_filter(y, win, 2) if n > win else y
@@ -151,6 +152,8 @@ def _logdec(t, y, y0, yf, step):
     """Corrected logarithmic decrement (not the thesis's Listing 7.7): the decrement of
     peak-to-valley amplitudes one period apart (independent of the final value, so an
     unsettled response is fine)."""
+    from scipy.signal import find_peaks  # load time: scipy.signal, 0.6 s
+
     dev = (_smooth(y) - yf) / step          # overshoots are positive
     prom = max(0.005, 4 * float(np.std(np.diff(y))) / abs(step))
     peaks, _ = find_peaks(dev, prominence=prom)

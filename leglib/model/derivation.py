@@ -33,9 +33,7 @@ from pathlib import Path
 import sympy as sp
 from sympy.printing.pycode import PythonCodePrinter
 
-# Order of the parameter vector P that every generated function takes.
-PARAM_NAMES = ("l1", "l2", "l3", "l4", "m1", "m2", "m3", "m4", "lc1", "lc2", "lc3", "lc4",
-               "I1", "I2", "I3", "I4", "Jd1", "Jd2", "g")
+from .param_names import PARAM_NAMES
 
 GENERATED_PATH = Path(__file__).with_name("_generated.py")
 

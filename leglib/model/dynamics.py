@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from ..params import LegParams
 from .terms import (
@@ -188,6 +187,8 @@ def simulate(leg: LegParams, t, x0, tau=None, model: str = "fivebar", friction: 
                 f"({math.degrees(x[0]):.3f}, {math.degrees(x[2]):.3f}) deg (the loop cannot "
                 f"close, or upper links coincide); keep q2 - q1 inside (0, 180) deg")
         return (x[1], a1, x[3], a2)
+
+    from scipy.integrate import solve_ivp  # load time: scipy.integrate (0.7 s), only for this reference simulation
 
     sol = solve_ivp(rhs, (t[0], t[-1]), np.asarray(x0, dtype=float), t_eval=t, method="DOP853",
                     rtol=rtol, atol=atol, max_step=(t[1] - t[0]) if t.size > 1 else np.inf)

@@ -16,7 +16,7 @@ from numba import njit, prange
 
 from ..params import LegParams
 from . import _generated as gen
-from .derivation import PARAM_NAMES
+from .param_names import PARAM_NAMES
 
 MODELS = ("fivebar", "parallelogram")
 STATE_NAMES = ("q1", "dq1", "q2", "dq2")
