@@ -4,6 +4,12 @@ Each is called from the kernel only when the plant's parameters switch it on
 (``plant_*.toml`` sections ``[belt]``, ``[cogging]``, ``[encoder_error]``, ``[friction]``):
 a compliant belt with backlash, cogging torque, an encoder reading error, and LuGre,
 direction-dependent and drifting friction; plus the Stribeck term of the plain friction.
+
+The functions ending in ``_v`` are the same effects for the vectorized mechanics of a block
+of legs that share one plant (:func:`leglib.twin.mechanics._mechanics_effects`): the same
+operations in the same order, branches turned into selects and the library's sin and exp
+into :mod:`leglib.kernelmath`'s (within a few ulp of them), so that a loop over the legs
+calling them vectorizes.
 """
 
 from __future__ import annotations
@@ -12,6 +18,10 @@ import math
 
 from numba import njit
 
+from ..kernelmath import exp as _exp
+from ..kernelmath import select
+from ..kernelmath import sincos as _sincos
+from ..kernelmath import tanh as _tanh
 from .layout import (
     F_ASYM,
     F_BACKLASH_HALF,
@@ -173,3 +183,59 @@ def _joint_friction(b, dt, X, FR, j, v):
         z_new = z_ss + (z - z_ss) * math.exp(-s0 * abs(v) * dt / g)
     X[b, X_Z1 + j] = z_new
     return s0 * z_new + FR[b, F_LUGRE_S1] * (z_new - z) / dt + visc
+
+
+@njit(cache=True, inline="always")
+def _sin_v(x):
+    """sin x by :func:`leglib.kernelmath.sincos`."""
+    return _sincos(x)[0]
+
+
+@njit(cache=True, inline="always")
+def _stribeck_v(excess, u):
+    """:func:`_stribeck`, branch-free."""
+    u2 = u * u
+    return select((excess == 0.0) | (u2 > 750.0), 0.0 * excess, excess * _exp(-u2))
+
+
+@njit(cache=True, inline="always")
+def _encoder_error_v(turns, a1, p1, a2, p2):
+    """:func:`_encoder_error` with the plant's amplitudes and phases as arguments."""
+    th = 2.0 * math.pi * turns
+    err = a1 * _sin_v(th + p1) + a2 * _sin_v(2.0 * th + p2)
+    return err / (2.0 * math.pi)
+
+
+@njit(cache=True, inline="always")
+def _cogging_torque_v(th, a1, a2, a3, p1, p2, p3):
+    """:func:`_cogging_torque` at ``th`` = 2 pi periods turns, the plant's amplitudes and
+    phases as arguments."""
+    return a1 * _sin_v(th + p1) + a2 * _sin_v(2.0 * th + p2) + a3 * _sin_v(3.0 * th + p3)
+
+
+@njit(cache=True, inline="always")
+def _belt_torque_v(stretch, rate, k, c, h):
+    """:func:`_belt_torque`, branch-free: stiffness ``k``, damping ``c``, half the backlash
+    ``h``."""
+    dead = select(stretch > h, stretch - h, select(stretch < -h, stretch + h, 0.0))
+    return k * dead + c * rate
+
+
+@njit(cache=True, inline="always")
+def _joint_friction_v(dt, v, travel, z, visc, coul, strib, v_strib, v_smooth, asym, drift, drift_travel, s0, s1,
+                      lugre):
+    """:func:`_joint_friction`, branch-free, for joint velocity ``v`` with the joint's
+    accumulated ``travel`` and bristle deflection ``z`` and the plant's parameters as
+    arguments (``lugre``: sigma0 > 0, a constant of the caller). Returns (friction torque,
+    the new z, the new travel)."""
+    s = 1.0 - drift * (1.0 - _exp(-travel / drift_travel))
+    travel_new = travel + abs(v) * dt
+    sgn = select(v > 0.0, 1.0, -1.0)
+    u = v / v_strib
+    g = s * (1.0 + sgn * asym) * (coul + strib * _exp(-(u * u)))
+    visc_f = s * visc * v
+    if not lugre:
+        return visc_f + g * _tanh(v / v_smooth), z, travel_new
+    z_ss = sgn * g / s0
+    z_new = select(v != 0.0, z_ss + (z - z_ss) * _exp(-s0 * abs(v) * dt / g), z)
+    return s0 * z_new + s1 * (z_new - z) / dt + visc_f, z_new, travel_new
