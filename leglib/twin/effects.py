@@ -186,12 +186,6 @@ def _joint_friction(b, dt, X, FR, j, v):
 
 
 @njit(cache=True, inline="always")
-def _sin_v(x):
-    """sin x by :func:`leglib.kernelmath.sincos`."""
-    return _sincos(x)[0]
-
-
-@njit(cache=True, inline="always")
 def _stribeck_v(excess, u):
     """:func:`_stribeck`, branch-free."""
     u2 = u * u
@@ -199,18 +193,31 @@ def _stribeck_v(excess, u):
 
 
 @njit(cache=True, inline="always")
-def _encoder_error_v(turns, a1, p1, a2, p2):
-    """:func:`_encoder_error` with the plant's amplitudes and phases as arguments."""
-    th = 2.0 * math.pi * turns
-    err = a1 * _sin_v(th + p1) + a2 * _sin_v(2.0 * th + p2)
+def _encoder_error_v(turns, a1, cp1, sp1, a2, cp2, sp2):
+    """:func:`_encoder_error` with the plant's amplitudes and the cosines and sines of its
+    phases as arguments: one sincos, the second harmonic by the double-angle formulas and
+    the phases by angle addition."""
+    s, c = _sincos(2.0 * math.pi * turns)
+    s2 = 2.0 * s * c
+    c2 = 1.0 - 2.0 * (s * s)
+    err = a1 * (s * cp1 + c * sp1) + a2 * (s2 * cp2 + c2 * sp2)
     return err / (2.0 * math.pi)
 
 
 @njit(cache=True, inline="always")
-def _cogging_torque_v(th, a1, a2, a3, p1, p2, p3):
+def _cogging_torque_v(th, a1, a2, a3, cp1, sp1, cp2, sp2, cp3, sp3):
     """:func:`_cogging_torque` at ``th`` = 2 pi periods turns, the plant's amplitudes and
-    phases as arguments."""
-    return a1 * _sin_v(th + p1) + a2 * _sin_v(2.0 * th + p2) + a3 * _sin_v(3.0 * th + p3)
+    the cosines and sines of its phases as arguments: one sincos of ``th``, the second and
+    third harmonics by the double- and triple-angle formulas and the phases by angle
+    addition (the same sum, within a few ulp of ``3 th``, the largest argument the
+    library's sines are given)."""
+    s, c = _sincos(th)
+    ss = s * s
+    s2 = 2.0 * s * c
+    c2 = 1.0 - 2.0 * ss
+    s3 = s * (3.0 - 4.0 * ss)
+    c3 = c * (1.0 - 4.0 * ss)
+    return (a1 * (s * cp1 + c * sp1) + a2 * (s2 * cp2 + c2 * sp2)) + a3 * (s3 * cp3 + c3 * sp3)
 
 
 @njit(cache=True, inline="always")

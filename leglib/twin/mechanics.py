@@ -252,7 +252,9 @@ def _cogging_effects(FB, nb, FR, DRV):
     belt = FR[0, F_BELT_K] > 0.0
     two_pi_periods = 2.0 * math.pi * FR[0, F_COG_PERIODS]
     a1, a2, a3 = FR[0, F_COG_A1], FR[0, F_COG_A2], FR[0, F_COG_A3]
-    p1, p2, p3 = FR[0, F_COG_P1], FR[0, F_COG_P2], FR[0, F_COG_P3]
+    cp1, sp1 = math.cos(FR[0, F_COG_P1]), math.sin(FR[0, F_COG_P1])
+    cp2, sp2 = math.cos(FR[0, F_COG_P2]), math.sin(FR[0, F_COG_P2])
+    cp3, sp3 = math.cos(FR[0, F_COG_P3]), math.sin(FR[0, F_COG_P3])
     dirn, gear, rest1, rest2 = DRV[2], DRV[0], DRV[3], DRV[4]
     reflect = DRV[2] * DRV[0]
     for i in range(nb):
@@ -260,8 +262,8 @@ def _cogging_effects(FB, nb, FR, DRV):
         m2 = select(belt, FB[_at(R_X + X_PHI2, i)], FB[_at(R_X + X_Q2, i)])
         turns1 = dirn * (m1 - rest1) * gear / (2.0 * math.pi)
         turns2 = dirn * (m2 - rest2) * gear / (2.0 * math.pi)
-        cog1 = _cogging_torque_v(two_pi_periods * turns1, a1, a2, a3, p1, p2, p3)
-        cog2 = _cogging_torque_v(two_pi_periods * turns2, a1, a2, a3, p1, p2, p3)
+        cog1 = _cogging_torque_v(two_pi_periods * turns1, a1, a2, a3, cp1, sp1, cp2, sp2, cp3, sp3)
+        cog2 = _cogging_torque_v(two_pi_periods * turns2, a1, a2, a3, cp1, sp1, cp2, sp2, cp3, sp3)
         FB[_at(R_TAU, i)] = FB[_at(R_TAU, i)] + reflect * cog1
         FB[_at(R_TAU + 1, i)] = FB[_at(R_TAU + 1, i)] + reflect * cog2
 

@@ -563,7 +563,8 @@ def _encoder_errors_shared(nb, FB, IB, FR, DRV):
     dirn = DRV[2]
     swap = int(DRV[5]) != 0          # axis 0 on joint 1
     on = FR[0, F_ENC_ON] > 0.0
-    a1, p1, a2, p2 = FR[0, F_ENC_A1], FR[0, F_ENC_P1], FR[0, F_ENC_A2], FR[0, F_ENC_P2]
+    a1, cp1, sp1 = FR[0, F_ENC_A1], math.cos(FR[0, F_ENC_P1]), math.sin(FR[0, F_ENC_P1])
+    a2, cp2, sp2 = FR[0, F_ENC_A2], math.cos(FR[0, F_ENC_P2]), math.sin(FR[0, F_ENC_P2])
     rest_a0 = select(swap, DRV[4], DRV[3])
     rest_a1 = select(swap, DRV[3], DRV[4])
     for i in range(nb):
@@ -571,8 +572,8 @@ def _encoder_errors_shared(nb, FB, IB, FR, DRV):
         q_joint0, q_joint1 = FB[_at(R_Q, i)], FB[_at(R_Q + 2, i)]
         turns0 = dirn * (select(swap, q_joint1, q_joint0) - rest_a0) * turns_per_rad
         turns1 = dirn * (select(swap, q_joint0, q_joint1) - rest_a1) * turns_per_rad
-        FB[_at(R_ENC_ERR, i)] = select(err_on, _encoder_error_v(turns0, a1, p1, a2, p2), 0.0)
-        FB[_at(R_ENC_ERR + 1, i)] = select(err_on, _encoder_error_v(turns1, a1, p1, a2, p2), 0.0)
+        FB[_at(R_ENC_ERR, i)] = select(err_on, _encoder_error_v(turns0, a1, cp1, sp1, a2, cp2, sp2), 0.0)
+        FB[_at(R_ENC_ERR + 1, i)] = select(err_on, _encoder_error_v(turns1, a1, cp1, sp1, a2, cp2, sp2), 0.0)
 
 
 @njit(cache=True)
