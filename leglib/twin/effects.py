@@ -186,13 +186,6 @@ def _joint_friction(b, dt, X, FR, j, v):
 
 
 @njit(cache=True, inline="always")
-def _stribeck_v(excess, u):
-    """:func:`_stribeck`, branch-free."""
-    u2 = u * u
-    return select((excess == 0.0) | (u2 > 750.0), 0.0 * excess, excess * _exp(-u2))
-
-
-@njit(cache=True, inline="always")
 def _encoder_error_v(turns, a1, cp1, sp1, a2, cp2, sp2):
     """:func:`_encoder_error` with the plant's amplitudes and the cosines and sines of its
     phases as arguments: one sincos, the second harmonic by the double-angle formulas and
@@ -230,19 +223,29 @@ def _belt_torque_v(stretch, rate, k, c, h):
 
 @njit(cache=True, inline="always")
 def _joint_friction_v(dt, v, travel, z, visc, coul, strib, v_strib, v_smooth, asym, drift, drift_travel, s0, s1,
-                      lugre):
-    """:func:`_joint_friction`, branch-free, for joint velocity ``v`` with the joint's
-    accumulated ``travel`` and bristle deflection ``z`` and the plant's parameters as
-    arguments (``lugre``: sigma0 > 0, a constant of the caller). Returns (friction torque,
+                      ext, lugre, inv_v_strib, inv_v_smooth):
+    """The friction torque of :func:`leglib.twin.mechanics._mechanics_leg` on a joint at
+    velocity ``v``, branch-free: with ``ext`` :func:`_joint_friction` (``lugre``: sigma0 >
+    0), the joint's accumulated ``travel`` and bristle deflection ``z`` and the plant's
+    parameters as arguments; else the plain friction with :func:`_stribeck` (``inv_v_strib``,
+    ``inv_v_smooth`` the reciprocals it multiplies by). The Stribeck exp and the tanh take
+    the argument of the case's own path (one of each for both). Returns (friction torque,
     the new z, the new travel)."""
     s = 1.0 - drift * (1.0 - _exp(-travel / drift_travel))
     travel_new = travel + abs(v) * dt
     sgn = select(v > 0.0, 1.0, -1.0)
-    u = v / v_strib
-    g = s * (1.0 + sgn * asym) * (coul + strib * _exp(-(u * u)))
+    u = select(ext, v / v_strib, v * inv_v_strib)
+    u2 = u * u
+    e_strib = _exp(-u2)
+    th = _tanh(select(ext, v / v_smooth, v * inv_v_smooth))
+    # the plain friction, _stribeck's term 0 without a Stribeck excess or past exp's underflow
+    strib_plain = select((strib == 0.0) | (u2 > 750.0), 0.0 * strib, strib * e_strib)
+    f_plain = visc * v + (coul + strib_plain) * th
+    # the extended one
+    g = s * (1.0 + sgn * asym) * (coul + strib * e_strib)
     visc_f = s * visc * v
-    if not lugre:
-        return visc_f + g * _tanh(v / v_smooth), z, travel_new
     z_ss = sgn * g / s0
     z_new = select(v != 0.0, z_ss + (z - z_ss) * _exp(-s0 * abs(v) * dt / g), z)
-    return s0 * z_new + s1 * (z_new - z) / dt + visc_f, z_new, travel_new
+    f_lugre = s0 * z_new + s1 * (z_new - z) / dt + visc_f
+    f_ext = select(lugre, f_lugre, visc_f + g * th)
+    return select(ext, f_ext, f_plain), select(lugre, z_new, z), travel_new

@@ -31,7 +31,6 @@ from .effects import (
     _joint_friction,
     _joint_friction_v,
     _stribeck,
-    _stribeck_v,
 )
 from .layout import (
     F_ASYM,
@@ -268,13 +267,20 @@ def _cogging_effects(FB, nb, FR, DRV):
         FB[_at(R_TAU + 1, i)] = FB[_at(R_TAU + 1, i)] + reflect * cog2
 
 
-@njit(cache=True, inline="always")
-def _friction_ext_loop(dt, FB, IB, nb, FR, lugre):
-    """Rows R_F1, R_F2 of a block that shares a plant with the extended friction
-    (effects._joint_friction): ``lugre`` a constant, so that each case is a loop of its own
-    without the other's work. The bristles and travel of a dead leg stay."""
+@njit(cache=True, error_model="numpy")
+def _friction_effects(dt, FB, IB, nb, FR):
+    """Rows R_F1, R_F2 of a block that shares a plant with unmodeled effects: the joints'
+    friction torques as :func:`_mechanics_leg` computes them, the plain friction with its
+    Stribeck term or the extended one (effects._joint_friction, its bristles and travel
+    updated in rows R_X..; a dead leg's stay). One loop for every case, the cases chosen by
+    selects: each case's Stribeck exp and tanh take the argument its own path computes, so
+    the loop inlines one exp and one tanh for both (the loop's code, compiled into every
+    kernel that calls it, stays small)."""
+    ext = FR[0, F_FRIC_EXT] > 0.0
+    lugre = FR[0, F_LUGRE_S0] > 0.0
     visc1, visc2, coul1, coul2, strib1, strib2 = FR[0, 0], FR[0, 1], FR[0, 2], FR[0, 3], FR[0, 4], FR[0, 5]
     v_strib, v_smooth = FR[0, 6], FR[0, 7]
+    inv_v_stribeck, inv_v_smooth = 1.0 / FR[0, 6], 1.0 / FR[0, 7]
     asym, drift, drift_travel = FR[0, F_ASYM], FR[0, F_DRIFT], FR[0, F_DRIFT_TRAVEL]
     s0, s1 = FR[0, F_LUGRE_S0], FR[0, F_LUGRE_S1]
     for i in range(nb):
@@ -283,34 +289,15 @@ def _friction_ext_loop(dt, FB, IB, nb, FR, lugre):
         z1, z2 = FB[_at(R_X + X_Z1, i)], FB[_at(R_X + X_Z2, i)]
         tr1, tr2 = FB[_at(R_X + X_TRAVEL1, i)], FB[_at(R_X + X_TRAVEL2, i)]
         f1, z1n, tr1n = _joint_friction_v(dt, dq1, tr1, z1, visc1, coul1, strib1, v_strib, v_smooth, asym, drift,
-                                          drift_travel, s0, s1, lugre)
+                                          drift_travel, s0, s1, ext, lugre, inv_v_stribeck, inv_v_smooth)
         f2, z2n, tr2n = _joint_friction_v(dt, dq2, tr2, z2, visc2, coul2, strib2, v_strib, v_smooth, asym, drift,
-                                          drift_travel, s0, s1, lugre)
+                                          drift_travel, s0, s1, ext, lugre, inv_v_stribeck, inv_v_smooth)
         FB[_at(R_F1, i)] = f1
         FB[_at(R_F2, i)] = f2
-        FB[_at(R_X + X_Z1, i)] = select(alive, z1n, z1)
-        FB[_at(R_X + X_Z2, i)] = select(alive, z2n, z2)
-        FB[_at(R_X + X_TRAVEL1, i)] = select(alive, tr1n, tr1)
-        FB[_at(R_X + X_TRAVEL2, i)] = select(alive, tr2n, tr2)
-
-
-@njit(cache=True, error_model="numpy")
-def _friction_effects(dt, FB, IB, nb, FR):
-    """Rows R_F1, R_F2 of a block that shares a plant with unmodeled effects: the joints'
-    friction torques as :func:`_mechanics_leg` computes them (the extended friction's
-    bristles and travel updated in rows R_X..)."""
-    if FR[0, F_FRIC_EXT] > 0.0:
-        if FR[0, F_LUGRE_S0] > 0.0:
-            _friction_ext_loop(dt, FB, IB, nb, FR, True)
-        else:
-            _friction_ext_loop(dt, FB, IB, nb, FR, False)
-        return
-    visc1, visc2, coul1, coul2, strib1, strib2 = FR[0, 0], FR[0, 1], FR[0, 2], FR[0, 3], FR[0, 4], FR[0, 5]
-    inv_v_stribeck, inv_v_smooth = 1.0 / FR[0, 6], 1.0 / FR[0, 7]
-    for i in range(nb):
-        dq1, dq2 = FB[_at(R_X + X_DQ1, i)], FB[_at(R_X + X_DQ2, i)]
-        FB[_at(R_F1, i)] = visc1 * dq1 + (coul1 + _stribeck_v(strib1, dq1 * inv_v_stribeck)) * _tanh(dq1 * inv_v_smooth)
-        FB[_at(R_F2, i)] = visc2 * dq2 + (coul2 + _stribeck_v(strib2, dq2 * inv_v_stribeck)) * _tanh(dq2 * inv_v_smooth)
+        FB[_at(R_X + X_Z1, i)] = select(alive & ext, z1n, z1)
+        FB[_at(R_X + X_Z2, i)] = select(alive & ext, z2n, z2)
+        FB[_at(R_X + X_TRAVEL1, i)] = select(alive & ext, tr1n, tr1)
+        FB[_at(R_X + X_TRAVEL2, i)] = select(alive & ext, tr2n, tr2)
 
 
 @njit(cache=True, error_model="numpy")
