@@ -7,7 +7,7 @@ that its loop over the legs vectorizes, with the same operations in the same ord
 same numbers); :func:`_mechanics_effects` steps a block of legs that share a plant with
 unmodeled effects, branch-free likewise, with the same operations in the same order but
 :mod:`leglib.kernelmath`'s sin and exp where the leg-by-leg path calls the library's (the
-numbers within a few ulp a tick; tests/twin/test_effects_vector.py states the tolerance).
+numbers within a few ulp a tick; EFFECTS_TOL in tests/twin/test_twin.py states the tolerance).
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ keeps the vectorized controllers and steps its mechanics in loops over the legs 
 vectorize as well (:func:`leglib.twin.mechanics._mechanics_effects`; the encoder's reading
 error beforehand, :func:`_encoder_errors_shared`): the same operations in the same order,
 but :mod:`leglib.kernelmath`'s sin and exp for the library's, so its numbers are within a
-few ulp a tick of the reference's (tests/twin/test_effects_vector.py states and checks the
+few ulp a tick of the reference's (EFFECTS_TOL in tests/twin/test_twin.py states and checks the
 tolerance over whole steps). A block of legs of different plants with effects steps its
 mechanics leg by leg (:func:`leglib.twin.mechanics._mechanics_leg`, the reference's; its
 encoder errors leg by leg with the library's sin): bit for bit the reference's numbers.
