@@ -112,8 +112,9 @@ def sincos(x):
     return so, co
 
 
-# tanh: Cephes' rational form below 0.625, else (e - 1) / (e + 1), e = exp(2|x|) by Cephes'
-# Pade form times a power of two (one division either way)
+# exp: Cephes' Pade form (exp below, and tanh's e = exp(2|x|)); tanh: Cephes' rational form
+# below 0.625, else (e - 1) / (e + 1), e the Pade form times a power of two (one division
+# either way)
 _LOG2E = 1.4426950408889634073599
 _LN2_HI, _LN2_LO = 6.93145751953125e-1, 1.42860682030941723212e-6
 _EP0, _EP1, _EP2 = 1.26177193074810590878e-4, 3.02994407707441961300e-2, 9.99999999999999999910e-1
@@ -121,6 +122,37 @@ _EQ0, _EQ1, _EQ2, _EQ3 = (3.00198505138664455042e-6, 2.52448340349684104192e-3,
                           2.27265548208155028766e-1, 2.00000000000000000009e0)
 _TP0, _TP1, _TP2 = -9.64399179425052238628e-1, -9.92877231001918586564e1, -1.61468768441708447952e3
 _TQ0, _TQ1, _TQ2 = 1.12811678491632931402e2, 2.23548839060100448583e3, 4.84406305325125486048e3
+
+
+@njit(cache=True, inline="always")
+def _exp_pade(x):
+    """Cephes' exp kernel: (n, p, q) with exp(x) = 2^n (q + p) / (q - p), n = round(x / ln2)
+    (an integral float), p, q its Pade form at r = x - n ln2, |r| <= ln2 / 2 (x finite)."""
+    n = math.floor(fma(x, _LOG2E, 0.5))
+    r = fma(-n, _LN2_LO, fma(-n, _LN2_HI, x))
+    rr = r * r
+    p = r * fma(fma(_EP0, rr, _EP1), rr, _EP2)
+    q = fma(fma(fma(_EQ0, rr, _EQ1), rr, _EQ2), rr, _EQ3)
+    return n, p, q
+
+
+# exp: 0 below _EXP_LO (math.exp's result rounds to 0 there), inf above _EXP_HI (overflow)
+_EXP_LO, _EXP_HI = -745.2, 709.782712893384
+
+
+@njit(cache=True, inline="always")
+def exp(x):
+    """exp x as Cephes computes it, 1 + 2 p / (q - p) times 2^n (:func:`_exp_pade`), over the
+    whole range: 0 below -745.2, inf above the largest finite result, NaN for NaN; results
+    below 2^-1022 rounded once into the subnormals (2^n as two normal factors)."""
+    xc = select(x > _EXP_HI, _EXP_HI, x)
+    xc = select(xc < _EXP_LO, _EXP_LO, xc)   # NaN stays NaN here ...
+    xc = select(xc == xc, xc, 0.0)           # ... and the kernel sees 0 (n must be a number)
+    n, p, q = _exp_pade(xc)
+    e = 1.0 + 2.0 * (p / (q - p))
+    h = math.floor(0.5 * n)                  # n in [-1075, 1024]: h, n - h in [-538, 512]
+    y = (e * pow2(h)) * pow2(n - h)
+    return select(x > _EXP_HI, math.inf, select(x < _EXP_LO, 0.0, select(x == x, y, x)))
 
 
 @njit(cache=True, inline="always")
@@ -132,13 +164,9 @@ def tanh(x):
     num = fma(fma(_TP0, z, _TP1), z, _TP2)
     den = fma(fma(z + _TQ0, z, _TQ1), z, _TQ2)
     small = fma(x * z, num / den, x)
-    # exp(2a) = 2^n (q + p) / (q - p), |r| <= ln2 / 2, n in [0, 58] (a clamped to 20, NaN too)
+    # exp(2a) = 2^n (q + p) / (q - p), n in [0, 58] (a clamped to 20, NaN too)
     ac = a if a <= 20.0 else 20.0
-    n = math.floor(fma(2.0 * ac, _LOG2E, 0.5))
-    r = fma(-n, _LN2_LO, fma(-n, _LN2_HI, 2.0 * ac))
-    rr = r * r
-    p = r * fma(fma(_EP0, rr, _EP1), rr, _EP2)
-    q = fma(fma(fma(_EQ0, rr, _EQ1), rr, _EQ2), rr, _EQ3)
+    n, p, q = _exp_pade(2.0 * ac)
     e = (q + p) * pow2(n)
     t = (e - (q - p)) / (e + (q - p))
     mid = t if x > 0.0 else -t

@@ -4,6 +4,12 @@ Each is called from the kernel only when the plant's parameters switch it on
 (``plant_*.toml`` sections ``[belt]``, ``[cogging]``, ``[encoder_error]``, ``[friction]``):
 a compliant belt with backlash, cogging torque, an encoder reading error, and LuGre,
 direction-dependent and drifting friction; plus the Stribeck term of the plain friction.
+
+The functions ending in ``_v`` are the same effects for the vectorized mechanics of a block
+of legs that share one plant (:func:`leglib.twin.mechanics._mechanics_effects`): the same
+operations in the same order, branches turned into selects and the library's sin and exp
+into :mod:`leglib.kernelmath`'s (within a few ulp of them), so that a loop over the legs
+calling them vectorizes.
 """
 
 from __future__ import annotations
@@ -12,6 +18,10 @@ import math
 
 from numba import njit
 
+from ..kernelmath import exp as _exp
+from ..kernelmath import select
+from ..kernelmath import sincos as _sincos
+from ..kernelmath import tanh as _tanh
 from .layout import (
     F_ASYM,
     F_BACKLASH_HALF,
@@ -173,3 +183,69 @@ def _joint_friction(b, dt, X, FR, j, v):
         z_new = z_ss + (z - z_ss) * math.exp(-s0 * abs(v) * dt / g)
     X[b, X_Z1 + j] = z_new
     return s0 * z_new + FR[b, F_LUGRE_S1] * (z_new - z) / dt + visc
+
+
+@njit(cache=True, inline="always")
+def _encoder_error_v(turns, a1, cp1, sp1, a2, cp2, sp2):
+    """:func:`_encoder_error` with the plant's amplitudes and the cosines and sines of its
+    phases as arguments: one sincos, the second harmonic by the double-angle formulas and
+    the phases by angle addition."""
+    s, c = _sincos(2.0 * math.pi * turns)
+    s2 = 2.0 * s * c
+    c2 = 1.0 - 2.0 * (s * s)
+    err = a1 * (s * cp1 + c * sp1) + a2 * (s2 * cp2 + c2 * sp2)
+    return err / (2.0 * math.pi)
+
+
+@njit(cache=True, inline="always")
+def _cogging_torque_v(th, a1, a2, a3, cp1, sp1, cp2, sp2, cp3, sp3):
+    """:func:`_cogging_torque` at ``th`` = 2 pi periods turns, the plant's amplitudes and
+    the cosines and sines of its phases as arguments: one sincos of ``th``, the second and
+    third harmonics by the double- and triple-angle formulas and the phases by angle
+    addition (the same sum, within a few ulp of ``3 th``, the largest argument the
+    library's sines are given)."""
+    s, c = _sincos(th)
+    ss = s * s
+    s2 = 2.0 * s * c
+    c2 = 1.0 - 2.0 * ss
+    s3 = s * (3.0 - 4.0 * ss)
+    c3 = c * (1.0 - 4.0 * ss)
+    return (a1 * (s * cp1 + c * sp1) + a2 * (s2 * cp2 + c2 * sp2)) + a3 * (s3 * cp3 + c3 * sp3)
+
+
+@njit(cache=True, inline="always")
+def _belt_torque_v(stretch, rate, k, c, h):
+    """:func:`_belt_torque`, branch-free: stiffness ``k``, damping ``c``, half the backlash
+    ``h``."""
+    dead = select(stretch > h, stretch - h, select(stretch < -h, stretch + h, 0.0))
+    return k * dead + c * rate
+
+
+@njit(cache=True, inline="always")
+def _joint_friction_v(dt, v, travel, z, visc, coul, strib, v_strib, v_smooth, asym, drift, drift_travel, s0, s1,
+                      ext, lugre, inv_v_strib, inv_v_smooth):
+    """The friction torque of :func:`leglib.twin.mechanics._mechanics_leg` on a joint at
+    velocity ``v``, branch-free: with ``ext`` :func:`_joint_friction` (``lugre``: sigma0 >
+    0), the joint's accumulated ``travel`` and bristle deflection ``z`` and the plant's
+    parameters as arguments; else the plain friction with :func:`_stribeck` (``inv_v_strib``,
+    ``inv_v_smooth`` the reciprocals it multiplies by). The Stribeck exp and the tanh take
+    the argument of the case's own path (one of each for both). Returns (friction torque,
+    the new z, the new travel)."""
+    s = 1.0 - drift * (1.0 - _exp(-travel / drift_travel))
+    travel_new = travel + abs(v) * dt
+    sgn = select(v > 0.0, 1.0, -1.0)
+    u = select(ext, v / v_strib, v * inv_v_strib)
+    u2 = u * u
+    e_strib = _exp(-u2)
+    th = _tanh(select(ext, v / v_smooth, v * inv_v_smooth))
+    # the plain friction, _stribeck's term 0 without a Stribeck excess or past exp's underflow
+    strib_plain = select((strib == 0.0) | (u2 > 750.0), 0.0 * strib, strib * e_strib)
+    f_plain = visc * v + (coul + strib_plain) * th
+    # the extended one
+    g = s * (1.0 + sgn * asym) * (coul + strib * e_strib)
+    visc_f = s * visc * v
+    z_ss = sgn * g / s0
+    z_new = select(v != 0.0, z_ss + (z - z_ss) * _exp(-s0 * abs(v) * dt / g), z)
+    f_lugre = s0 * z_new + s1 * (z_new - z) / dt + visc_f
+    f_ext = select(lugre, f_lugre, visc_f + g * th)
+    return select(ext, f_ext, f_plain), select(lugre, z_new, z), travel_new

@@ -4,11 +4,19 @@ The common case of a sweep -- every axis in position control or IDLE with its in
 through, no watchdog -- runs here: the block's state copied into rows by leg, then per tick
 one loop over the legs for the controllers and, for a plain plant (no unmodeled effects),
 one for the mechanics, branch-free, which the compiler turns into SIMD code over 8 legs at
-a time. A plant with unmodeled effects keeps the vectorized controllers (the encoder's
-reading error computed beforehand, leg by leg) and steps its mechanics leg by leg
-(:func:`leglib.twin.mechanics._mechanics_leg`, the reference's). It does what the reference
-tick of :mod:`leglib.twin.kernel` does for such a block, the same operations in the same
-order, so a leg's numbers do not depend on its path (tests/twin checks it bit for bit).
+a time. It does what the reference tick of :mod:`leglib.twin.kernel` does for such a block,
+the same operations in the same order, so a leg's numbers do not depend on its path
+(tests/twin checks it bit for bit).
+
+A block whose legs share one plant with unmodeled effects (the thesis grid on one plant)
+keeps the vectorized controllers and steps its mechanics in loops over the legs that
+vectorize as well (:func:`leglib.twin.mechanics._mechanics_effects`; the encoder's reading
+error beforehand, :func:`_encoder_errors_shared`): the same operations in the same order,
+but :mod:`leglib.kernelmath`'s sin and exp for the library's, so its numbers are within a
+few ulp a tick of the reference's (EFFECTS_TOL in tests/twin/test_twin.py states and checks the
+tolerance over whole steps). A block of legs of different plants with effects steps its
+mechanics leg by leg (:func:`leglib.twin.mechanics._mechanics_leg`, the reference's; its
+encoder errors leg by leg with the library's sin): bit for bit the reference's numbers.
 """
 
 from __future__ import annotations
@@ -26,7 +34,7 @@ from ..abort import (
     _oscillation_step,
 )
 from ..kernelmath import py_min, select
-from .effects import _encoder_error
+from .effects import _encoder_error, _encoder_error_v
 from .layout import (
     AXIS_ERROR_CONTROLLER_FAILED,
     AXIS_ERROR_MOTOR_FAILED,
@@ -60,7 +68,11 @@ from .layout import (
     CONTROLLER_ERROR_OVERSPEED,
     CONTROLLER_ERROR_SPINOUT_DETECTED,
     F_BELT_K,
+    F_ENC_A1,
+    F_ENC_A2,
     F_ENC_ON,
+    F_ENC_P1,
+    F_ENC_P2,
     G_BRAKE_I,
     G_BRAKE_ON,
     G_BRAKE_R,
@@ -122,12 +134,12 @@ from .layout import (
     MOTOR_ERROR_SYSTEM_LEVEL,
     MOTOR_ERROR_UNKNOWN_TORQUE,
     MOTOR_ERROR_UNKNOWN_VOLTAGE_COMMAND,
-    N_FROWS,
     N_IROWS,
     N_K,
     N_V,
     N_VS,
     N_W,
+    N_X,
     ODRIVE_ERROR_DC_BUS_OVER_CURRENT,
     ODRIVE_ERROR_DC_BUS_OVER_REGEN_CURRENT,
     R_AB,
@@ -194,7 +206,16 @@ from .layout import (
     W_MOTERR,
     X_PHI1,
 )
-from .mechanics import _at, _mechanics_leg, _mechanics_plain, _param_row
+from .mechanics import (
+    N_FROWS_EFFECTS,
+    R_X,
+    _at,
+    _mechanics_effects,
+    _mechanics_leg,
+    _mechanics_plain,
+    _param_row,
+    _shared_block,
+)
 from .rng import _normal
 from .stages import (
     brake_current,
@@ -533,6 +554,28 @@ def _encoder_errors(b0, nb, FB, IB, FR, DRV):
             FB[_at(R_ENC_ERR + a, i)] = e
 
 
+@njit(cache=True, error_model="numpy")
+def _encoder_errors_shared(nb, FB, IB, FR, DRV):
+    """:func:`_encoder_errors` for a block of legs that share one plant (FR its one row), in
+    a loop over the legs that vectorizes: kernelmath's sin for the library's (within a few
+    ulp)."""
+    turns_per_rad = DRV[0] / (2.0 * math.pi)
+    dirn = DRV[2]
+    swap = int(DRV[5]) != 0          # axis 0 on joint 1
+    on = FR[0, F_ENC_ON] > 0.0
+    a1, cp1, sp1 = FR[0, F_ENC_A1], math.cos(FR[0, F_ENC_P1]), math.sin(FR[0, F_ENC_P1])
+    a2, cp2, sp2 = FR[0, F_ENC_A2], math.cos(FR[0, F_ENC_P2]), math.sin(FR[0, F_ENC_P2])
+    rest_a0 = select(swap, DRV[4], DRV[3])
+    rest_a1 = select(swap, DRV[3], DRV[4])
+    for i in range(nb):
+        err_on = on & (IB[_at(R_DEAD, i)] == 0)
+        q_joint0, q_joint1 = FB[_at(R_Q, i)], FB[_at(R_Q + 2, i)]
+        turns0 = dirn * (select(swap, q_joint1, q_joint0) - rest_a0) * turns_per_rad
+        turns1 = dirn * (select(swap, q_joint0, q_joint1) - rest_a1) * turns_per_rad
+        FB[_at(R_ENC_ERR, i)] = select(err_on, _encoder_error_v(turns0, a1, cp1, sp1, a2, cp2, sp2), 0.0)
+        FB[_at(R_ENC_ERR + 1, i)] = select(err_on, _encoder_error_v(turns1, a1, cp1, sp1, a2, cp2, sp2), 0.0)
+
+
 @njit(cache=True)
 def _mechanics_legs(k, dt, b0, nb, FB, IB, X, AI, P, FR, MECH, DRV, ABORT, TM, INV_VS, INV_VSM, tau2):
     """The mechanics of a vectorized block whose plant has unmodeled effects: leg by leg,
@@ -561,10 +604,13 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, 
     into the block's rows, then per tick one loop over the legs for the controllers
     (:func:`_control_vector`) and, when ``plain`` (they share a plain plant,
     :func:`_plain_block`), one for the mechanics (:func:`_mechanics_plain`), both of which
-    vectorize; else the mechanics leg by leg (:func:`_mechanics_legs`). The numbers are
-    those of :func:`_run_block`."""
+    vectorize: the numbers of :func:`_run_block`. When they share a plant with unmodeled
+    effects (:func:`_shared_block`), the mechanics' loops of :func:`_mechanics_effects`,
+    which vectorize too: the numbers of :func:`_run_block` within a few ulp a tick. Else
+    the mechanics leg by leg (:func:`_mechanics_legs`): the numbers of :func:`_run_block`."""
     nb = b1 - b0
-    FB = np.zeros(N_FROWS * LANES)
+    shared = (not plain) and _shared_block(b0, b1, P, FR, MECH)
+    FB = np.zeros(N_FROWS_EFFECTS * LANES)
     IB = np.zeros(N_IROWS * LANES, np.int64)
     enc = False
     for b in range(b0, b1):
@@ -584,6 +630,9 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, 
                 FB[_at(R_Q + n, i)] = X[b, n]
         else:
             _sensed_rows(b, i, X, FR, FB)
+        if shared:
+            for n in range(N_X):
+                FB[_at(R_X + n, i)] = X[b, n]
         INV_VS[i], INV_VSM[i] = 1.0 / FR[b, 6], 1.0 / FR[b, 7]
         IB[_at(R_DEAD, i)] = 1 if ABORT[b, 1] == ABORT_NONFINITE else 0
         IB[_at(R_RNG, i)] = np.int64(RNG[b])
@@ -625,6 +674,7 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, 
         IB[_at(R_AB + 1, i)] = ABORT[b, 1]
     P_plain = P[b0:b0 + 1]
     FR_plain = FR[b0:b0 + 1]
+    MECH_plain = MECH[b0:b0 + 1]
     n_rec = REC.shape[1]
     next_rec = 0 if rec_every > 0 else -1
     for k in range(n_ticks):
@@ -641,12 +691,18 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, 
                         REC[b, r, 3] = FB[_at(R_V0 + V_IQM, i)]
                         REC[b, r, 4] = FB[_at(R_V1 + V_IQM, i)]
         if enc:
-            _encoder_errors(b0, nb, FB, IB, FR, DRV)
+            if plain or shared:
+                _encoder_errors_shared(nb, FB, IB, FR_plain, DRV)
+            else:
+                _encoder_errors(b0, nb, FB, IB, FR, DRV)
         _control_vector(k, dt, FB, IB, nb, DRV, enc)
-        if not plain:
+        if shared:
+            _mechanics_effects(dt, FB, IB, nb, P_plain, FR_plain, MECH_plain, DRV)
+        elif not plain:
             _mechanics_legs(k, dt, b0, nb, FB, IB, X, AI, P, FR, MECH, DRV, ABORT, TM, INV_VS, INV_VSM, tau2)
             continue
-        _mechanics_plain(dt, FB, IB, nb, P_plain, FR_plain)
+        else:
+            _mechanics_plain(dt, FB, IB, nb, P_plain, FR_plain)
         for i in range(nb):
             if IB[_at(R_NF, i)] != 0:
                 IB[_at(R_AB, i)] = k
@@ -659,6 +715,9 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, 
         if plain:
             for n in range(5):
                 X[b, n] = FB[_at(R_Q + n, i)]
+        if shared:
+            for n in range(N_X):
+                X[b, n] = FB[_at(R_X + n, i)]
         RNG[b] = np.uint64(IB[_at(R_RNG, i)])
         for a in range(2):
             rv = R_V0 if a == 0 else R_V1

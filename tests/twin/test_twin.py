@@ -15,6 +15,7 @@ from leglib.params import load_motor, load_plant
 from leglib.twin import layout as L
 from leglib.twin.host import ABORT_NONE, Twin, _run_serial, seeds_for
 from leglib.twin.kernel import _plain_block, _vector_block
+from leglib.twin.mechanics import _shared_block
 from leglib.twin.rng import _seed_words
 
 
@@ -311,7 +312,7 @@ def test_each_transaction_costs_latency(odrv):
 
 
 def test_kernel_elementary_functions_match_the_math_module():
-    """The tick loop's inlined sin/cos and tanh are within a few ulp of the library's."""
+    """The tick loop's inlined sin/cos, tanh and exp are within a few ulp of the library's."""
     import math
 
     from numba import njit
@@ -328,12 +329,32 @@ def test_kernel_elementary_functions_match_the_math_module():
                 e_th = max(e_th, abs(t - r) / np.spacing(abs(r)))
         return e_sc, e_th
 
+    @njit
+    def worst_ulp_exp(xs):
+        e = 0.0
+        for x in xs:
+            r = math.exp(x)
+            e = max(e, abs(K.exp(x) - r) / np.spacing(r))   # subnormal results: in their spacing
+        return e
+
+    @njit
+    def exp1(x):
+        return K.exp(x)
+
     rng = np.random.default_rng(0)
     for scale in (1e-6, 0.5, 1.0, 8.0, 30.0, 200.0):
         e_sc, e_th = worst_ulp(rng.uniform(-scale, scale, 200_000))
         assert e_sc <= 1.0 and e_th <= 4.0, (scale, e_sc, e_th)   # sin, cos: absolute, in eps
+    for lo, hi in ((-1e-6, 1e-6), (-1.0, 1.0), (-40.0, 40.0), (-745.3, -700.0), (700.0, 709.78), (-750.0, 710.0)):
+        assert worst_ulp_exp(rng.uniform(lo, hi, 200_000)) <= 2.0, (lo, hi)
     assert K.tanh(25.0) == 1.0 and K.tanh(-25.0) == -1.0 and math.isnan(K.tanh(math.nan))
     assert K.sincos(0.0) == (0.0, 1.0)
+    # exp's ends as math.exp's: 1 at 0, the largest finite result, overflow, the smallest
+    # subnormal, underflow to 0, NaN
+    assert exp1(0.0) == 1.0 and exp1(709.782712893384) == math.exp(709.782712893384)
+    assert exp1(709.7827128933841) == math.inf and exp1(math.inf) == math.inf and exp1(1e300) == math.inf
+    assert exp1(-745.13) == math.exp(-745.13) == 5e-324 and exp1(-745.2) == 0.0 and exp1(-math.inf) == 0.0
+    assert math.isnan(exp1(math.nan))
 
 
 def _monitor(signal, min_amp=0.01):
@@ -411,6 +432,40 @@ def _assert_same(vec, leg):
         np.testing.assert_array_equal(getattr(st_vec, name), getattr(st_leg, name), err_msg=name)
 
 
+# How far the vectorized mechanics of a block that shares a plant with unmodeled effects
+# (mechanics._mechanics_effects) may lie from the leg-by-leg path (mechanics._mechanics_leg,
+# the reference). Both do the same operations in the same order (with the library's sin,
+# exp and tanh in the vectorized path's place its numbers are the reference's bit for bit);
+# the vectorized path's own sin, exp and tanh (kernelmath: within 1, 2 and 4 ulp of the
+# library's) and its harmonics of cogging and encoder error from one sincos by the
+# double/triple-angle formulas (within a few ulp of 3 x the cogging angle, ~2500 rad at
+# most) differ from the library's by about 1e-16 relative a tick. The closed loop carries
+# these along: after 4000 ticks the states lie within about 3e-11 of the reference's; over
+# the thesis grid's 1.5 s steps (12000 ticks) within 1e-11 on most legs, but a few lightly
+# damped ones (pos_gain 20-30 with a large integrator gain) amplify them to at most 1.4e-7 A
+# of Iq and 8e-8 rad/s of joint speed (bench plant, measured; a compliant belt alone
+# without an exp or a sin on its path: bit for bit). EFFECTS_TOL is 1e-6 in the state's and
+# the record's units (rad, rad/s, A, N*m, turn, W): 7 x the largest seen, and far below what
+# a reading tells apart (one encoder count is 2.6e-4 rad of joint; the current sensor's noise
+# 0.05 A). Integer results -- the quantized encoder counts, the noise streams, the abort
+# ticks and reasons, the modes and error flags -- must be equal: with these seeds no reading
+# lands within the difference of a count's edge (were one to, the counts would differ by
+# one and the assertion would say so).
+EFFECTS_TOL = 1e-6
+
+
+def _assert_close(vec, leg, tol=EFFECTS_TOL):
+    """The vectorized effects path's numbers against the leg-by-leg path's: equal where
+    they are integers or counts, within ``tol`` (absolute) where they are floats."""
+    (st_vec, rec_vec), (st_leg, rec_leg) = vec, leg
+    np.testing.assert_array_equal(rec_vec[..., :3], rec_leg[..., :3], err_msg="time and encoder counts")
+    np.testing.assert_allclose(rec_vec[..., 3:], rec_leg[..., 3:], rtol=0, atol=tol, err_msg="Iq")
+    for name in ("AI", "ABORT", "RNG"):
+        np.testing.assert_array_equal(getattr(st_vec, name), getattr(st_leg, name), err_msg=name)
+    for name in ("X", "AS"):
+        np.testing.assert_allclose(getattr(st_vec, name), getattr(st_leg, name), rtol=0, atol=tol, err_msg=name)
+
+
 def test_a_vectorized_block_gives_the_leg_by_leg_numbers():
     """A block of legs that share a plain plant, every axis in position control or IDLE,
     runs vectorized (_run_block_vector: controllers and mechanics each one loop over the
@@ -450,15 +505,21 @@ def _encoder_error_only():
                       encoder_phase1=bench.encoder_phase1, encoder_phase2=bench.encoder_phase2)
 
 
-@pytest.mark.parametrize("name", ["bench", "belt", "cogging", "lugre", "encoder_error", "mixed"])
+@pytest.mark.parametrize("name", ["bench", "belt", "cogging", "lugre", "encoder_error", "bench_independent",
+                                  "mixed"])
 def test_a_vectorized_block_with_unmodeled_effects_gives_the_leg_by_leg_numbers(name):
     """Plants with unmodeled effects take the vectorized controllers too (the encoder's
     reading error computed before the axes' loop; the encoder on the rotor with a compliant
-    belt) and step their mechanics leg by leg (_mechanics_leg; the vectorized loop when
-    only the encoder errs): the same numbers as the
-    reference, bit for bit, with the safety abort, an overspeed and an axis left IDLE among
-    them. "mixed": a block of legs of different plants (belt, cogging, LuGre, encoder error,
-    plain, independent inertias)."""
+    belt), with the safety abort, an overspeed and an axis left IDLE among them.
+
+    A block of legs that share one plant (every case but "mixed") steps its mechanics in
+    loops over the legs (_mechanics_effects; _mechanics_plain when only the encoder errs)
+    with kernelmath's sin and exp and its encoder errors likewise: its numbers lie within
+    EFFECTS_TOL of the reference's (why: see EFFECTS_TOL), its integers (counts, noise,
+    aborts, errors) equal. "bench_independent": bench's effects on two independent
+    inertias. "mixed": a block of legs of different plants (belt, cogging, LuGre, encoder
+    error, plain, independent inertias) steps its mechanics leg by leg with the reference's
+    own _mechanics_leg: the same numbers, bit for bit."""
     gains = np.array([[20, 0.02, 0.01], [50, 0.046, 0.001], [35, 0.1, 0.05], [200, 0.5, 5.0],
                       [50, 0.002, 0.08], [80, 0.03, 0.2], [12, 0.2, 0.0], [60, 0.06, 0.02]])
     B = len(gains)       # (50, 0.002, 0.08): an oscillation the abort stops at about tick 3750
@@ -467,6 +528,8 @@ def test_a_vectorized_block_with_unmodeled_effects_gives_the_leg_by_leg_numbers(
         plants += [_encoder_error_only(), load_plant("default"), load_plant("default").replace(mechanism="independent"),
                    load_plant("bench")]
         twins = [Twin(p, seed=4) for p in plants]
+    elif name == "bench_independent":
+        twins = [Twin(load_plant("bench").replace(mechanism="independent"), seed=4)] * B
     else:
         twins = [Twin(_encoder_error_only() if name == "encoder_error" else name, seed=4)] * B
     tw = twins[0]
@@ -481,18 +544,49 @@ def test_a_vectorized_block_with_unmodeled_effects_gives_the_leg_by_leg_numbers(
     start.AI[7, 1, L.I_MODE] = L.MODE_IDLE                # one axis left IDLE
     # the encoder's error alone leaves the mechanics plain (one vectorized loop)
     assert _plain_block(0, B, P, FR, MECH) == (name == "encoder_error")
+    assert _shared_block(0, B, P, FR, MECH) == (name != "mixed")
     vec, leg = _run_both(tw, start, P, FR, MECH)
     st = vec[0]
-    assert (st.ABORT[:, 1] != ABORT_NONE).sum() >= 1
+    if name != "bench_independent":      # two independent inertias: no oscillation to abort
+        assert (st.ABORT[:, 1] != ABORT_NONE).sum() >= 1
     assert st.AI[1, 0, L.I_CTRL_ERR] & L.CONTROLLER_ERROR_OVERSPEED
     assert st.AI[7, 0, L.I_MODE] == L.MODE_POSITION and st.AI[7, 1, L.I_MODE] == L.MODE_IDLE
     moved = np.abs(st.X[:, L.X_Q1] - start.X[:, L.X_Q1])
     assert (moved > 1e-3).sum() >= 4                       # the legs moved
     if name in ("bench", "belt"):                          # the rotors turned apart from the joints
         assert np.any(st.X[:, L.X_PHI1] != st.X[:, L.X_Q1])
-    if name in ("bench", "lugre"):
+    if name in ("bench", "lugre", "bench_independent"):
         assert np.any(st.X[:, L.X_Z1] != 0.0)
-    _assert_same(vec, leg)
+    if name == "mixed":
+        _assert_same(vec, leg)
+    else:
+        _assert_close(vec, leg)
+
+
+@pytest.mark.parametrize("name", ["bench", "belt", "cogging", "lugre"])
+def test_the_thesis_grid_on_a_plant_with_effects_keeps_the_leg_by_leg_outcomes(name):
+    """The thesis grid's 400 steps of 1.5 s on one plant with unmodeled effects, through the
+    vectorized path (the legs share the plant: _mechanics_effects) and leg by leg (the
+    reference): every point completes or aborts alike, at the same tick for the same reason,
+    with the same encoder counts and error flags; the floats within EFFECTS_TOL."""
+    tw = Twin(name, seed=1)
+    start = tw.step_batch(lg.thesis_grid(), duration=0.0)["final"]    # prepared, not yet run
+    ticks, every = int(round(1.5 / tw.dt)), 16
+
+    def run(st):
+        rec = np.zeros((st.batch, ticks // every, 5))
+        tw.run(st, ticks=ticks, record_every=every, record=rec)
+        return st, rec
+
+    B = start.batch
+    P = np.ascontiguousarray(np.broadcast_to(tw.P, (B, tw.P.size)))
+    FR = np.ascontiguousarray(np.broadcast_to(tw.FR, (B, tw.FR.size)))
+    assert _shared_block(0, B, P, FR, np.full(B, tw.mech, np.int64))
+    assert _vector_block(0, B, FR, start.C, start.AI)
+    vec, leg = run(start.copy()), run(_leg_by_leg(start))
+    aborted = vec[0].ABORT[:, 1] != ABORT_NONE
+    assert 0 < aborted.sum() < B                 # both outcomes occur on the grid
+    _assert_close(vec, leg)
 
 
 def test_a_block_whose_board_checks_its_bus_runs_leg_by_leg():
