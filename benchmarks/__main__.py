@@ -505,19 +505,20 @@ def bench_make_run():
 
 def bench_slider():
     """From a slider's release to the redrawn figure in JupyterLab (Chromium), notebooks 03
-    and 04: the browser test's slider sessions, seven moves each (target <= 0.2 s, the
-    median of notebook 04's gain slider; 03's pole slider is reported beside it)."""
+    and 04: the browser test's slider sessions, seven moves each (target <= 0.2 s for each
+    notebook's median; reported: the slower notebook's moves)."""
     import subprocess
     slider_times = Path(__file__).resolve().parents[1] / "reports" / "browser" / "slider_times.json"
     subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:xdist", "-p", "no:cacheprovider",
                     "tests/notebook/test_browser.py", "-k", "slider"], check=True,
                    cwd=slider_times.parents[2], stdout=subprocess.DEVNULL)
     record = json.loads(slider_times.read_text())
-    times = record["04"]["times_s"]
+    slower = max(record, key=lambda k: record[k]["median_s"])
+    times = record[slower]["times_s"]
     print("      " + "; ".join(f"{k} ({v['slider']}): median {v['median_s'] * 1e3:.0f} ms of {len(v['times_s'])} moves"
                               for k, v in sorted(record.items())))
     return {"median_s": statistics.median(times), "min_s": min(times), "max_s": max(times), "runs": len(times),
-            "target_s": 0.2, "notebooks": {k: v["median_s"] for k, v in record.items()}}
+            "target_s": 0.2, "slower": slower, "notebooks": {k: v["median_s"] for k, v in record.items()}}
 
 
 def bench_suite():
