@@ -35,9 +35,13 @@ class PanelFigure:
     ncols : axes side by side
     figsize : inches
     static : indices of the axes drawn once
+    legend : ``(handles, width)``: one legend of the figure beside the axes, its entries
+        ``handles`` (artists with labels), ``width`` the fraction of the figure kept for it
+        at the right; drawn once with the static axes (the dynamic axes' own legends would
+        be laid out and their texts rendered again on every redraw, a quarter of it)
     """
 
-    def __init__(self, out, ncols: int, figsize, static=()):
+    def __init__(self, out, ncols: int, figsize, static=(), legend=None):
         from matplotlib.backends.backend_agg import FigureCanvasAgg  # load time: matplotlib, only when drawing
         from matplotlib.figure import Figure  # load time: as matplotlib's canvas above
 
@@ -49,6 +53,12 @@ class PanelFigure:
         self.dynamic = [ax for ax in self.axes if ax not in self.static]
         self.overlays: list = []
         self._background = None
+        self._right = 1.0
+        if legend is not None:
+            handles, width = legend
+            self._right = 1.0 - width
+            self.fig.legend(handles=handles, loc="upper left", bbox_to_anchor=(self._right, 0.97), fontsize=7,
+                            borderaxespad=0.0)
 
     def clear(self) -> list:
         """Empty the dynamic axes for the callback to draw into (its lines, markers, texts
@@ -70,7 +80,7 @@ class PanelFigure:
 
         canvas = self.fig.canvas
         if self._background is None:
-            self.fig.tight_layout()
+            self.fig.tight_layout(rect=(0.0, 0.0, self._right, 1.0))
             hidden = self.dynamic + self.overlays
             for a in hidden:
                 a.set_visible(False)
@@ -198,7 +208,16 @@ def pole_placement_panel(sys, center: float = -7.0, spread: float = 0.007, obser
     readout = W.HTML()
     warning = W.HTML()
     out = W.Output()
-    view = PanelFigure(out, 3, (15, 3.8))
+    from matplotlib.lines import Line2D  # load time: matplotlib, only when drawing
+
+    # one legend for both plots, drawn once: colour the joint, dashes the linear prediction
+    legend = [Line2D([], [], color="b", ls="--", lw=1, label="joint 1, linear"),
+              Line2D([], [], color="r", ls="--", lw=1, label="joint 2, linear"),
+              Line2D([], [], color="b", ls="-", label="joint 1, nonlinear, limited"),
+              Line2D([], [], color="r", ls="-", label="joint 2, nonlinear, limited"),
+              Line2D([], [], color="k", ls=":", lw=0.8, label="q2 setpoint"),
+              Line2D([], [], color="k", ls="-.", lw=0.8, label="torque limit")]
+    view = PanelFigure(out, 3, (15, 3.8), legend=(legend, 0.12))
     t = np.linspace(0, duration, 401)
 
     def redraw(*_):
@@ -223,29 +242,26 @@ def pole_placement_panel(sys, center: float = -7.0, spread: float = 0.007, obser
         a1, a2, a3 = view.clear()
         plots.plot_pole_map(d, ax=a1)
         a1.set_title("poles [1/s]")
-        a2.plot(t, np.degrees(y[:, 0]), "b--", lw=1, label="q1, linear")
-        a2.plot(t, np.degrees(y[:, 1]), "r--", lw=1, label="q2, linear")
-        a2.axhline(np.degrees(step_rad[1]), color="k", ls=":", lw=0.8, label="q2 setpoint")
-        a3.plot(t, tau_lin[:, 0], "b--", lw=1, label="tau1, linear demand")
-        a3.plot(t, tau_lin[:, 1], "r--", lw=1, label="tau2, linear demand")
+        a2.plot(t, np.degrees(y[:, 0]), "b--", lw=1)
+        a2.plot(t, np.degrees(y[:, 1]), "r--", lw=1)
+        a2.axhline(np.degrees(step_rad[1]), color="k", ls=":", lw=0.8)
+        a3.plot(t, tau_lin[:, 0], "b--", lw=1)
+        a3.plot(t, tau_lin[:, 1], "r--", lw=1)
         if res is not None:
             q0 = np.array(leg.q0)
-            a2.plot(res.t, np.degrees(res.x[:, 0] - q0[0]), "b-", label="q1, nonlinear, limited")
-            a2.plot(res.t, np.degrees(res.x[:, 2] - q0[1]), "r-", label="q2, nonlinear, limited")
+            a2.plot(res.t, np.degrees(res.x[:, 0] - q0[0]), "b-")
+            a2.plot(res.t, np.degrees(res.x[:, 2] - q0[1]), "r-")
             tau0 = np.array(res.meta["tau0"])
-            a3.plot(res.t, res.tau[:, 0] - tau0[0], "b-", label="tau1, nonlinear")
-            a3.plot(res.t, res.tau[:, 1] - tau0[1], "r-", label="tau2, nonlinear")
+            a3.plot(res.t, res.tau[:, 0] - tau0[0], "b-")
+            a3.plot(res.t, res.tau[:, 1] - tau0[1], "r-")
         for s in (1, -1):
-            a3.axhline(s * torque_limit, color="k", lw=0.8, ls="-.", label="torque limit" if s > 0 else None)
+            a3.axhline(s * torque_limit, color="k", lw=0.8, ls="-.")
         a2.set_xlabel("t [s]")
         a2.set_ylabel("joint angle deviation [deg]")
         a2.set_title("predicted step" + (" (linear and nonlinear)" if res is not None else " (linear)"))
-        a2.legend(fontsize=7)
         a3.set_xlabel("t [s]")
         a3.set_ylabel("joint torque deviation [N m]")
         a3.set_title("torques against the limit")
-        # beside the panel: inside, the torques and both limits leave no place it would not cover
-        a3.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
         view.show()
 
     for s in (s_center, s_spread, s_obs, s_zeta, t_poles):
