@@ -103,19 +103,14 @@ def _param_row(P, b):
 
 @njit(cache=True)
 def _plain_block(b0, b1, P, FR, MECH):
-    """Whether legs b0..b1-1 share one plain plant (see :func:`_mechanics_plain`)."""
+    """Whether legs b0..b1-1 share one plain plant (see :func:`_mechanics_plain`): one plant
+    (:func:`_shared_block`) with the exact five-bar and no unmodeled effect."""
     for b in range(b0, b1):
         if MECH[b] != 0 or FR[b, F_BELT_K] > 0.0 or FR[b, F_COG_ON] > 0.0 or FR[b, F_FRIC_EXT] > 0.0:
             return False
         if FR[b, 4] != 0.0 or FR[b, 5] != 0.0:
             return False
-        for n in range(P.shape[1]):
-            if P[b, n] != P[b0, n]:
-                return False
-        for n in range(FR.shape[1]):
-            if FR[b, n] != FR[b0, n]:
-                return False
-    return True
+    return _shared_block(b0, b1, P, FR, MECH)
 
 
 @njit(cache=True, error_model="numpy")
