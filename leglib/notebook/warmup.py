@@ -11,8 +11,9 @@ ends; ``python -m leglib run`` does it again first when a kernel's source change
 
 The groups are chosen so that no two processes compile the same heavy function:
 
-- ``device``: a device's calibration and a step (the twin's kernel on a batch of one);
-- ``batch``: the twin's kernel on a batch of several legs (the thread-parallel kernel);
+- ``device``: a device's calibration and a step (the twin's kernel on a batch of one), and
+  a batch of legs on the same reference path (its thread-parallel wrapper);
+- ``batch``: the twin's vectorized path for a batch of legs (a sweep's blocks);
 - ``fits``: the step fit (one and many responses), the friction fit's simulator, the
   model's terms, energy, kinematics and the torque-table simulator.
 
@@ -41,8 +42,8 @@ import numpy as np
 
 PACKAGE = Path(__file__).resolve().parents[1]
 GROUPS = ("device", "batch", "fits")
-WHAT = {"device": "the twin's kernel for one device (calibration, a step)",
-        "batch": "the twin's kernel for a batch of legs (sweeps)",
+WHAT = {"device": "the twin's reference kernel (a device's calibration and steps)",
+        "batch": "the twin's vectorized kernel (sweeps)",
         "fits": "the step and friction fits, the model's terms"}
 
 
@@ -54,12 +55,20 @@ def _device():
     configure(dev)
     calibrate(dev)
     step_response(dev, 50.0, 0.046, 0.001, duration=0.05)
+    # a batch of legs whose boards check their bus voltage: the same reference path, over
+    # the cores (the batch group compiles the vectorized path only)
+    from ..twin.host import Twin  # load time: as above
+    from ..twin.layout import C_VBUS_CHECKS  # load time: as above
+    twin = Twin()
+    st = twin._initial_state(2)
+    st.C[:, 0, C_VBUS_CHECKS] = 1.0
+    twin.run(st, ticks=8)
 
 
 def _batch():
     from ..twin.host import Twin  # load time: as above
     twin = Twin()
-    twin.run(twin._initial_state(2), ticks=8)
+    twin.run(twin._initial_state(2), ticks=8)    # a sweep's blocks: the vectorized path
 
 
 def _fits():

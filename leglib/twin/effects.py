@@ -5,11 +5,13 @@ Each is called from the kernel only when the plant's parameters switch it on
 a compliant belt with backlash, cogging torque, an encoder reading error, and LuGre,
 direction-dependent and drifting friction; plus the Stribeck term of the plain friction.
 
-The functions ending in ``_v`` are the same effects for the vectorized mechanics of a block
-of legs that share one plant (:func:`leglib.twin.mechanics._mechanics_effects`): the same
-operations in the same order, branches turned into selects and the library's sin and exp
-into :mod:`leglib.kernelmath`'s (within a few ulp of them), so that a loop over the legs
-calling them vectorizes.
+Their sines, exponentials and tanh are :mod:`leglib.kernelmath`'s (within a few ulp of the
+library's), and a harmonic's sine of the angle plus its phase is taken by angle addition
+from one sincos of the angle and the phase's cosine and sine (FR columns the host computes
+once). The functions ending in ``_v`` are the same effects for the vectorized mechanics of
+a block of legs that share one plant (:func:`leglib.twin.mechanics._mechanics_effects`):
+the same operations in the same order, branches turned into selects, so that a loop over
+the legs calling them vectorizes. So the two paths give the same numbers, bit for bit.
 """
 
 from __future__ import annotations
@@ -31,16 +33,21 @@ from .layout import (
     F_COG_A1,
     F_COG_A2,
     F_COG_A3,
-    F_COG_P1,
-    F_COG_P2,
-    F_COG_P3,
+    F_COG_C1,
+    F_COG_C2,
+    F_COG_C3,
     F_COG_PERIODS,
+    F_COG_S1,
+    F_COG_S2,
+    F_COG_S3,
     F_DRIFT,
     F_DRIFT_TRAVEL,
     F_ENC_A1,
     F_ENC_A2,
-    F_ENC_P1,
-    F_ENC_P2,
+    F_ENC_C1,
+    F_ENC_C2,
+    F_ENC_S1,
+    F_ENC_S2,
     F_JM,
     F_LUGRE_S0,
     F_LUGRE_S1,
@@ -65,7 +72,7 @@ def _stribeck(excess, u):
     u2 = u * u
     if excess == 0.0 or u2 > 750.0:
         return 0.0 * excess
-    return excess * math.exp(-u2)
+    return excess * _exp(-u2)
 
 
 @njit(cache=True, inline="always")
@@ -82,9 +89,8 @@ def _encoder_error(FR, b, turns):
     """Reading error [turn] of a magnetic encoder at rotor angle ``turns``: once per turn
     (magnet eccentricity, offsets) and twice per turn (amplitude mismatch of the sine and
     cosine channels)."""
-    th = 2.0 * math.pi * turns
-    err = FR[b, F_ENC_A1] * math.sin(th + FR[b, F_ENC_P1]) + FR[b, F_ENC_A2] * math.sin(2.0 * th + FR[b, F_ENC_P2])
-    return err / (2.0 * math.pi)
+    return _encoder_error_v(turns, FR[b, F_ENC_A1], FR[b, F_ENC_C1], FR[b, F_ENC_S1], FR[b, F_ENC_A2],
+                            FR[b, F_ENC_C2], FR[b, F_ENC_S2])
 
 
 @njit(cache=True, inline="always")
@@ -92,9 +98,9 @@ def _cogging_torque(FR, b, turns):
     """Cogging torque on the rotor [N*m, motor side] at rotor angle ``turns``: harmonics 1-3
     of the cogging period (FR[b, F_COG_PERIODS] periods per turn). A sum of sines: it has a
     potential, so it stores no energy over a period."""
-    th = 2.0 * math.pi * FR[b, F_COG_PERIODS] * turns
-    return (FR[b, F_COG_A1] * math.sin(th + FR[b, F_COG_P1]) + FR[b, F_COG_A2] * math.sin(2.0 * th + FR[b, F_COG_P2])
-            + FR[b, F_COG_A3] * math.sin(3.0 * th + FR[b, F_COG_P3]))
+    return _cogging_torque_v(2.0 * math.pi * FR[b, F_COG_PERIODS] * turns, FR[b, F_COG_A1], FR[b, F_COG_A2],
+                             FR[b, F_COG_A3], FR[b, F_COG_C1], FR[b, F_COG_S1], FR[b, F_COG_C2], FR[b, F_COG_S2],
+                             FR[b, F_COG_C3], FR[b, F_COG_S3])
 
 
 @njit(cache=True, inline="always")
@@ -168,28 +174,28 @@ def _joint_friction(b, dt, X, FR, j, v):
     integrated exactly for v constant over the tick (unconditionally stable). Updates the
     joint's z and travel in X."""
     travel = X[b, X_TRAVEL1 + j]
-    s = 1.0 - FR[b, F_DRIFT] * (1.0 - math.exp(-travel / FR[b, F_DRIFT_TRAVEL]))
+    s = 1.0 - FR[b, F_DRIFT] * (1.0 - _exp(-travel / FR[b, F_DRIFT_TRAVEL]))
     X[b, X_TRAVEL1 + j] = travel + abs(v) * dt
     sgn = 1.0 if v > 0.0 else -1.0
-    g = s * (1.0 + sgn * FR[b, F_ASYM]) * (FR[b, 2 + j] + FR[b, 4 + j] * math.exp(-(v / FR[b, 6]) ** 2))
+    g = s * (1.0 + sgn * FR[b, F_ASYM]) * (FR[b, 2 + j] + FR[b, 4 + j] * _exp(-(v / FR[b, 6]) ** 2))
     visc = s * FR[b, j] * v
     s0 = FR[b, F_LUGRE_S0]
     if s0 <= 0.0:
-        return visc + g * math.tanh(v / FR[b, 7])
+        return visc + g * _tanh(v / FR[b, 7])
     z = X[b, X_Z1 + j]
     z_new = z
     if v != 0.0:
         z_ss = sgn * g / s0
-        z_new = z_ss + (z - z_ss) * math.exp(-s0 * abs(v) * dt / g)
+        z_new = z_ss + (z - z_ss) * _exp(-s0 * abs(v) * dt / g)
     X[b, X_Z1 + j] = z_new
     return s0 * z_new + FR[b, F_LUGRE_S1] * (z_new - z) / dt + visc
 
 
 @njit(cache=True, inline="always")
 def _encoder_error_v(turns, a1, cp1, sp1, a2, cp2, sp2):
-    """:func:`_encoder_error` with the plant's amplitudes and the cosines and sines of its
-    phases as arguments: one sincos, the second harmonic by the double-angle formulas and
-    the phases by angle addition."""
+    """The encoder's reading error at ``turns``, the plant's amplitudes and the cosines and
+    sines of its phases as arguments: one sincos, the second harmonic by the double-angle
+    formulas and the phases by angle addition."""
     s, c = _sincos(2.0 * math.pi * turns)
     s2 = 2.0 * s * c
     c2 = 1.0 - 2.0 * (s * s)
@@ -199,11 +205,10 @@ def _encoder_error_v(turns, a1, cp1, sp1, a2, cp2, sp2):
 
 @njit(cache=True, inline="always")
 def _cogging_torque_v(th, a1, a2, a3, cp1, sp1, cp2, sp2, cp3, sp3):
-    """:func:`_cogging_torque` at ``th`` = 2 pi periods turns, the plant's amplitudes and
-    the cosines and sines of its phases as arguments: one sincos of ``th``, the second and
+    """The cogging torque at ``th`` = 2 pi periods turns, the plant's amplitudes and the
+    cosines and sines of its phases as arguments: one sincos of ``th``, the second and
     third harmonics by the double- and triple-angle formulas and the phases by angle
-    addition (the same sum, within a few ulp of ``3 th``, the largest argument the
-    library's sines are given)."""
+    addition (within a few ulp of the library's sines of ``k th`` plus each phase)."""
     s, c = _sincos(th)
     ss = s * s
     s2 = 2.0 * s * c

@@ -95,17 +95,21 @@ from .layout import (
     F_BELT_SUB,
     F_COG_A1,
     F_COG_A3,
+    F_COG_C1,
     F_COG_ON,
     F_COG_P1,
     F_COG_P3,
     F_COG_PERIODS,
+    F_COG_S3,
     F_DRIFT,
     F_DRIFT_TRAVEL,
     F_ENC_A1,
     F_ENC_A2,
+    F_ENC_C1,
     F_ENC_ON,
     F_ENC_P1,
     F_ENC_P2,
+    F_ENC_S2,
     F_FRIC_EXT,
     F_JM,
     F_LUGRE_S0,
@@ -188,11 +192,15 @@ def effect_parameters(plant: PlantParams, leg: LegParams, dt: float) -> np.ndarr
     if sum(amps) > 0.0:
         out[k(F_COG_ON)], out[k(F_COG_PERIODS)] = 1.0, plant.cogging_periods
         out[k(F_COG_A1):k(F_COG_A3) + 1] = amps
-        out[k(F_COG_P1):k(F_COG_P3) + 1] = plant.cogging_phase1, plant.cogging_phase2, plant.cogging_phase3
+        phases = (plant.cogging_phase1, plant.cogging_phase2, plant.cogging_phase3)
+        out[k(F_COG_P1):k(F_COG_P3) + 1] = phases
+        out[k(F_COG_C1):k(F_COG_S3) + 1] = [f(p) for p in phases for f in (math.cos, math.sin)]
     if plant.encoder_error1 + plant.encoder_error2 > 0.0:
         out[k(F_ENC_ON)] = 1.0
         out[k(F_ENC_A1)], out[k(F_ENC_P1)] = plant.encoder_error1, plant.encoder_phase1
         out[k(F_ENC_A2)], out[k(F_ENC_P2)] = plant.encoder_error2, plant.encoder_phase2
+        out[k(F_ENC_C1):k(F_ENC_S2) + 1] = [f(p) for p in (plant.encoder_phase1, plant.encoder_phase2)
+                                            for f in (math.cos, math.sin)]
     if plant.lugre or plant.coulomb_asymmetry != 0.0 or plant.friction_drift > 0.0:
         out[k(F_FRIC_EXT)] = 1.0
         out[k(F_LUGRE_S0)], out[k(F_LUGRE_S1)] = plant.lugre_stiffness, plant.lugre_damping
@@ -401,8 +409,10 @@ class Twin:
         B = st.batch
         fixed = self.__dict__.setdefault("_fixed", {})
         if B not in fixed:  # per-batch-size constant arrays, built once (host loops call run often)
-            fixed[B] = (np.ascontiguousarray(np.broadcast_to(self.P, (B, self.P.size))),
-                        np.ascontiguousarray(np.broadcast_to(self.FR, (B, self.FR.size))),
+            # copies, writable for every B: numba types a read-only array apart, so a view
+            # (read-only for B = 1) would compile every kernel a second time
+            fixed[B] = (np.broadcast_to(self.P, (B, self.P.size)).copy(),
+                        np.broadcast_to(self.FR, (B, self.FR.size)).copy(),
                         np.full(B, self.mech, np.int64), np.zeros((B, 0, 2)), np.zeros((B, 0, 5)))
         P, FR, MECH, no_table, no_rec = fixed[B]
         tt = no_table if torque_table is None else np.ascontiguousarray(torque_table, float)

@@ -225,7 +225,13 @@ def _oscillation_update_at(AS, b, a, err, min_amp):
     return unstable
 
 
-@njit(cache=True, parallel=True)
+# The batch goes to the two paths from Python, and each path is its own compiled function:
+# numba compiles a function with everything it can reach, so one entry point that chose
+# between the paths inside (as this kernel once did) compiled both for every use. A device
+# (a batch of one) takes the reference path only, and no longer compiles the vectorized one
+# (about half of a cold start's compile); a sweep compiles the reference path only when one
+# of its blocks needs it.
+
 def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC, rec_every,
          rec_offset, block):
     """Advance every leg of the batch by ``n_ticks`` ticks of ``dt`` seconds.
@@ -241,43 +247,85 @@ def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
     pairs, phase resistance [ohm], phase inductance [H]); TT[b, i, axis] a torque table applied
     to axes in torque mode, row i = tick // tt_period (ignored when it has no rows);
     REC[b, k] = (t, counts0, counts1, Iq0, Iq1) every ``rec_every`` ticks from row
-    ``rec_offset``. The legs go in blocks of ``block``, a thread's unit of work (see
-    :func:`_run_block`). Returns nothing; everything is updated in place.
+    ``rec_offset``. The legs go in blocks of ``block``, a thread's unit of work, over the
+    cores: a block that :func:`_vector_block` allows vectorized (:func:`_run_vector`), every
+    other one through :func:`_run_block`, the reference (:func:`_run_reference`). A block
+    changes only its own legs' rows, so the two sets of blocks may run one after the other.
+    Returns nothing; everything is updated in place.
     """
-    B = X.shape[0]
     block = min(block, LANES)
-    for blk in prange((B + block - 1) // block):
-        _run_block_any(blk * block, min(B, (blk + 1) * block), n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV,
-                       RNG, ABORT, TT, tt_period, REC, rec_every, rec_offset)
+    vec = _vector_blocks(X.shape[0], block, FR, C, AI)
+    if vec.any():
+        _run_vector(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, REC, rec_every, rec_offset, block,
+                    vec)
+    if not vec.all():
+        _run_reference(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC, rec_every,
+                       rec_offset, block, vec)
 
 
-@njit(cache=True)
 def _run_serial(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC, rec_every,
                 rec_offset, block):
     """:func:`_run` without the thread pool: cheaper per call for a batch of one (a host loop
-    advancing the virtual device a few ticks per USB transaction). Same numbers."""
+    advancing the virtual device a few ticks per USB transaction). Same numbers. A batch of
+    one always goes through the reference (:func:`_run_block`): the vectorized path pays
+    only over a block of legs, and gives the reference's numbers bit for bit; so a device
+    never compiles it."""
     B = X.shape[0]
     block = min(block, LANES)
     for b0 in range(0, B, block):
-        _run_block_any(b0, min(B, b0 + block), n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT,
-                       tt_period, REC, rec_every, rec_offset)
+        b1 = min(B, b0 + block)
+        if B > 1 and _vector_block(b0, b1, FR, C, AI):
+            _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, REC, rec_every,
+                              rec_offset, _plain_block(b0, b1, P, FR, MECH))
+        else:
+            _run_block_reference(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
+                                 REC, rec_every, rec_offset)
 
 
 @njit(cache=True)
-def _run_block_any(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC,
-                   rec_every, rec_offset):
-    """Legs b0..b1-1: vectorized (:func:`_run_block_vector`) when they allow, else
-    :func:`_run_block`; the same numbers either way."""
+def _vector_blocks(B, block, FR, C, AI):
+    """Per block of ``block`` legs of a batch of ``B``: whether :func:`_vector_block` allows it."""
+    out = np.zeros((B + block - 1) // block, np.bool_)
+    for blk in range(out.size):
+        out[blk] = _vector_block(blk * block, min(B, (blk + 1) * block), FR, C, AI)
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _run_vector(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, REC, rec_every, rec_offset, block, vec):
+    """The blocks of :func:`_run` marked in ``vec``, vectorized, over the cores."""
+    B = X.shape[0]
+    for blk in prange(vec.size):
+        if vec[blk]:
+            b0, b1 = blk * block, min(B, (blk + 1) * block)
+            _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, REC, rec_every,
+                              rec_offset, _plain_block(b0, b1, P, FR, MECH))
+
+
+@njit(cache=True, parallel=True)
+def _run_reference(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC, rec_every,
+                   rec_offset, block, vec):
+    """The blocks of :func:`_run` not marked in ``vec``, through the reference, over the cores."""
+    B = X.shape[0]
+    for blk in prange(vec.size):
+        if not vec[blk]:
+            _run_block_reference(blk * block, min(B, (blk + 1) * block), n_ticks, dt, X, AS, AI, C, P, FR, MECH,
+                                 DRV, RNG, ABORT, TT, tt_period, REC, rec_every, rec_offset)
+
+
+@njit(cache=True)
+def _run_block_reference(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC,
+                         rec_every, rec_offset):
+    """Legs b0..b1-1 through :func:`_run_block`: all at once when they share a plain plant
+    (its mechanics then vectorize), else one leg at a time (its state stays in the cache
+    over the ticks)."""
     # ``plain`` goes to _run_block as a variable, never as the constant True or False: numba
     # would compile _run_block once for each literal (about 25 s more on a first run)
     plain = _plain_block(b0, b1, P, FR, MECH)
-    if _vector_block(b0, b1, FR, C, AI):
-        _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, REC, rec_every,
-                          rec_offset, plain)
-    elif plain:
+    if plain:
         _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC,
                    rec_every, rec_offset, plain)
-    else:   # one leg at a time: its state stays in the cache over the ticks
+    else:
         for b in range(b0, b1):
             _run_block(b, b + 1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
                        REC, rec_every, rec_offset, plain)

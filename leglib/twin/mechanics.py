@@ -5,9 +5,9 @@ five-bar with gravity, friction and the stop between the upper links.
 :func:`_mechanics_plain` steps a block of legs that share a plain plant, branch-free so
 that its loop over the legs vectorizes, with the same operations in the same order (the
 same numbers); :func:`_mechanics_effects` steps a block of legs that share a plant with
-unmodeled effects, branch-free likewise, with the same operations in the same order but
-:mod:`leglib.kernelmath`'s sin and exp where the leg-by-leg path calls the library's (the
-numbers within a few ulp a tick; EFFECTS_TOL in tests/twin/test_twin.py states the tolerance).
+unmodeled effects, branch-free likewise, with the same operations in the same order and
+the same functions (:mod:`leglib.kernelmath`'s sin, exp and tanh on both paths): the same
+numbers, bit for bit (tests/twin).
 """
 
 from __future__ import annotations
@@ -41,11 +41,14 @@ from .layout import (
     F_COG_A1,
     F_COG_A2,
     F_COG_A3,
+    F_COG_C1,
+    F_COG_C2,
+    F_COG_C3,
     F_COG_ON,
-    F_COG_P1,
-    F_COG_P2,
-    F_COG_P3,
     F_COG_PERIODS,
+    F_COG_S1,
+    F_COG_S2,
+    F_COG_S3,
     F_DRIFT,
     F_DRIFT_TRAVEL,
     F_FRIC_EXT,
@@ -246,9 +249,9 @@ def _cogging_effects(FB, nb, FR, DRV):
     belt = FR[0, F_BELT_K] > 0.0
     two_pi_periods = 2.0 * math.pi * FR[0, F_COG_PERIODS]
     a1, a2, a3 = FR[0, F_COG_A1], FR[0, F_COG_A2], FR[0, F_COG_A3]
-    cp1, sp1 = math.cos(FR[0, F_COG_P1]), math.sin(FR[0, F_COG_P1])
-    cp2, sp2 = math.cos(FR[0, F_COG_P2]), math.sin(FR[0, F_COG_P2])
-    cp3, sp3 = math.cos(FR[0, F_COG_P3]), math.sin(FR[0, F_COG_P3])
+    cp1, sp1 = FR[0, F_COG_C1], FR[0, F_COG_S1]
+    cp2, sp2 = FR[0, F_COG_C2], FR[0, F_COG_S2]
+    cp3, sp3 = FR[0, F_COG_C3], FR[0, F_COG_S3]
     dirn, gear, rest1, rest2 = DRV[2], DRV[0], DRV[3], DRV[4]
     reflect = DRV[2] * DRV[0]
     for i in range(nb):
@@ -338,8 +341,7 @@ def _mechanics_effects(dt, FB, IB, nb, P, FR, MECH, DRV):
     unmodeled effects (P, FR, MECH: its one row): the operations of :func:`_mechanics_leg`
     in the same order, in loops over the legs that vectorize -- the cogging
     (:func:`_cogging_effects`), the friction (:func:`_friction_effects`), the five-bar
-    and the stops, the compliant belt (:func:`_belt_effects`) -- with kernelmath's sin and
-    exp for the library's. The legs' state is in rows R_X.. of FB, the motor torques in
+    and the stops, the compliant belt (:func:`_belt_effects`); the same numbers. The legs' state is in rows R_X.. of FB, the motor torques in
     rows R_TAU (the cogging added there); rows R_Q.. get what the encoders see next (the
     rotors with a compliant belt); a dead leg (IB row R_DEAD) keeps its state; IB row R_NF
     is set where the accelerations came out non-finite (the caller stops the leg; its

@@ -11,12 +11,11 @@ the same operations in the same order, so a leg's numbers do not depend on its p
 A block whose legs share one plant with unmodeled effects (the thesis grid on one plant)
 keeps the vectorized controllers and steps its mechanics in loops over the legs that
 vectorize as well (:func:`leglib.twin.mechanics._mechanics_effects`; the encoder's reading
-error beforehand, :func:`_encoder_errors_shared`): the same operations in the same order,
-but :mod:`leglib.kernelmath`'s sin and exp for the library's, so its numbers are within a
-few ulp a tick of the reference's (EFFECTS_TOL in tests/twin/test_twin.py states and checks the
-tolerance over whole steps). A block of legs of different plants with effects steps its
-mechanics leg by leg (:func:`leglib.twin.mechanics._mechanics_leg`, the reference's; its
-encoder errors leg by leg with the library's sin): bit for bit the reference's numbers.
+error beforehand, :func:`_encoder_errors_shared`): the same operations in the same order
+with the same functions (:mod:`leglib.kernelmath`'s sin, exp and tanh, on both paths), so
+bit for bit the reference's numbers. A block of legs of different plants with effects
+steps its mechanics leg by leg (:func:`leglib.twin.mechanics._mechanics_leg`, the
+reference's; its encoder errors leg by leg): bit for bit the reference's numbers too.
 """
 
 from __future__ import annotations
@@ -70,9 +69,11 @@ from .layout import (
     F_BELT_K,
     F_ENC_A1,
     F_ENC_A2,
+    F_ENC_C1,
+    F_ENC_C2,
     F_ENC_ON,
-    F_ENC_P1,
-    F_ENC_P2,
+    F_ENC_S1,
+    F_ENC_S2,
     G_BRAKE_I,
     G_BRAKE_ON,
     G_BRAKE_R,
@@ -539,7 +540,7 @@ def _encoder_errors(b0, nb, FB, IB, FR, DRV):
     """Rows R_ENC_ERR of a block for this tick: each axis's encoder reading error
     (effects._encoder_error) at the turns its encoder is at, computed as
     kernel._encoder_tick computes them; 0 for a leg without one. A loop of its own: the
-    library's sines would keep the axes' loops from vectorizing."""
+    legs' branches would keep the axes' loops from vectorizing."""
     turns_per_rad = DRV[0] / (2.0 * math.pi)
     dirn = DRV[2]
     j0 = int(DRV[5])
@@ -557,14 +558,13 @@ def _encoder_errors(b0, nb, FB, IB, FR, DRV):
 @njit(cache=True, error_model="numpy")
 def _encoder_errors_shared(nb, FB, IB, FR, DRV):
     """:func:`_encoder_errors` for a block of legs that share one plant (FR its one row), in
-    a loop over the legs that vectorizes: kernelmath's sin for the library's (within a few
-    ulp)."""
+    a loop over the legs that vectorizes (the same numbers)."""
     turns_per_rad = DRV[0] / (2.0 * math.pi)
     dirn = DRV[2]
     swap = int(DRV[5]) != 0          # axis 0 on joint 1
     on = FR[0, F_ENC_ON] > 0.0
-    a1, cp1, sp1 = FR[0, F_ENC_A1], math.cos(FR[0, F_ENC_P1]), math.sin(FR[0, F_ENC_P1])
-    a2, cp2, sp2 = FR[0, F_ENC_A2], math.cos(FR[0, F_ENC_P2]), math.sin(FR[0, F_ENC_P2])
+    a1, cp1, sp1 = FR[0, F_ENC_A1], FR[0, F_ENC_C1], FR[0, F_ENC_S1]
+    a2, cp2, sp2 = FR[0, F_ENC_A2], FR[0, F_ENC_C2], FR[0, F_ENC_S2]
     rest_a0 = select(swap, DRV[4], DRV[3])
     rest_a1 = select(swap, DRV[3], DRV[4])
     for i in range(nb):
@@ -606,7 +606,7 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, 
     :func:`_plain_block`), one for the mechanics (:func:`_mechanics_plain`), both of which
     vectorize: the numbers of :func:`_run_block`. When they share a plant with unmodeled
     effects (:func:`_shared_block`), the mechanics' loops of :func:`_mechanics_effects`,
-    which vectorize too: the numbers of :func:`_run_block` within a few ulp a tick. Else
+    which vectorize too: the numbers of :func:`_run_block`. Else
     the mechanics leg by leg (:func:`_mechanics_legs`): the numbers of :func:`_run_block`."""
     nb = b1 - b0
     shared = (not plain) and _shared_block(b0, b1, P, FR, MECH)

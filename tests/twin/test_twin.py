@@ -432,40 +432,6 @@ def _assert_same(vec, leg):
         np.testing.assert_array_equal(getattr(st_vec, name), getattr(st_leg, name), err_msg=name)
 
 
-# How far the vectorized mechanics of a block that shares a plant with unmodeled effects
-# (mechanics._mechanics_effects) may lie from the leg-by-leg path (mechanics._mechanics_leg,
-# the reference). Both do the same operations in the same order (with the library's sin,
-# exp and tanh in the vectorized path's place its numbers are the reference's bit for bit);
-# the vectorized path's own sin, exp and tanh (kernelmath: within 1, 2 and 4 ulp of the
-# library's) and its harmonics of cogging and encoder error from one sincos by the
-# double/triple-angle formulas (within a few ulp of 3 x the cogging angle, ~2500 rad at
-# most) differ from the library's by about 1e-16 relative a tick. The closed loop carries
-# these along: after 4000 ticks the states lie within about 3e-11 of the reference's; over
-# the thesis grid's 1.5 s steps (12000 ticks) within 1e-11 on most legs, but a few lightly
-# damped ones (pos_gain 20-30 with a large integrator gain) amplify them to at most 1.4e-7 A
-# of Iq and 8e-8 rad/s of joint speed (bench plant, measured; a compliant belt alone
-# without an exp or a sin on its path: bit for bit). EFFECTS_TOL is 1e-6 in the state's and
-# the record's units (rad, rad/s, A, N*m, turn, W): 7 x the largest seen, and far below what
-# a reading tells apart (one encoder count is 2.6e-4 rad of joint; the current sensor's noise
-# 0.05 A). Integer results -- the quantized encoder counts, the noise streams, the abort
-# ticks and reasons, the modes and error flags -- must be equal: with these seeds no reading
-# lands within the difference of a count's edge (were one to, the counts would differ by
-# one and the assertion would say so).
-EFFECTS_TOL = 1e-6
-
-
-def _assert_close(vec, leg, tol=EFFECTS_TOL):
-    """The vectorized effects path's numbers against the leg-by-leg path's: equal where
-    they are integers or counts, within ``tol`` (absolute) where they are floats."""
-    (st_vec, rec_vec), (st_leg, rec_leg) = vec, leg
-    np.testing.assert_array_equal(rec_vec[..., :3], rec_leg[..., :3], err_msg="time and encoder counts")
-    np.testing.assert_allclose(rec_vec[..., 3:], rec_leg[..., 3:], rtol=0, atol=tol, err_msg="Iq")
-    for name in ("AI", "ABORT", "RNG"):
-        np.testing.assert_array_equal(getattr(st_vec, name), getattr(st_leg, name), err_msg=name)
-    for name in ("X", "AS"):
-        np.testing.assert_allclose(getattr(st_vec, name), getattr(st_leg, name), rtol=0, atol=tol, err_msg=name)
-
-
 def test_a_vectorized_block_gives_the_leg_by_leg_numbers():
     """A block of legs that share a plain plant, every axis in position control or IDLE,
     runs vectorized (_run_block_vector: controllers and mechanics each one loop over the
@@ -513,13 +479,13 @@ def test_a_vectorized_block_with_unmodeled_effects_gives_the_leg_by_leg_numbers(
     belt), with the safety abort, an overspeed and an axis left IDLE among them.
 
     A block of legs that share one plant (every case but "mixed") steps its mechanics in
-    loops over the legs (_mechanics_effects; _mechanics_plain when only the encoder errs)
-    with kernelmath's sin and exp and its encoder errors likewise: its numbers lie within
-    EFFECTS_TOL of the reference's (why: see EFFECTS_TOL), its integers (counts, noise,
-    aborts, errors) equal. "bench_independent": bench's effects on two independent
+    loops over the legs (_mechanics_effects; _mechanics_plain when only the encoder errs),
+    its encoder errors likewise; "bench_independent": bench's effects on two independent
     inertias. "mixed": a block of legs of different plants (belt, cogging, LuGre, encoder
     error, plain, independent inertias) steps its mechanics leg by leg with the reference's
-    own _mechanics_leg: the same numbers, bit for bit."""
+    own _mechanics_leg. Every case gives the reference's numbers bit for bit: both paths
+    take the effects' sines, exponentials and tanh from kernelmath, the harmonics by angle
+    addition from the phases' cosines and sines in FR, in the same order."""
     gains = np.array([[20, 0.02, 0.01], [50, 0.046, 0.001], [35, 0.1, 0.05], [200, 0.5, 5.0],
                       [50, 0.002, 0.08], [80, 0.03, 0.2], [12, 0.2, 0.0], [60, 0.06, 0.02]])
     B = len(gains)       # (50, 0.002, 0.08): an oscillation the abort stops at about tick 3750
@@ -557,10 +523,7 @@ def test_a_vectorized_block_with_unmodeled_effects_gives_the_leg_by_leg_numbers(
         assert np.any(st.X[:, L.X_PHI1] != st.X[:, L.X_Q1])
     if name in ("bench", "lugre", "bench_independent"):
         assert np.any(st.X[:, L.X_Z1] != 0.0)
-    if name == "mixed":
-        _assert_same(vec, leg)
-    else:
-        _assert_close(vec, leg)
+    _assert_same(vec, leg)
 
 
 @pytest.mark.parametrize("name", ["bench", "belt", "cogging", "lugre"])
@@ -568,7 +531,7 @@ def test_the_thesis_grid_on_a_plant_with_effects_keeps_the_leg_by_leg_outcomes(n
     """The thesis grid's 400 steps of 1.5 s on one plant with unmodeled effects, through the
     vectorized path (the legs share the plant: _mechanics_effects) and leg by leg (the
     reference): every point completes or aborts alike, at the same tick for the same reason,
-    with the same encoder counts and error flags; the floats within EFFECTS_TOL."""
+    with the same encoder counts and error flags, and every other number bit for bit."""
     tw = Twin(name, seed=1)
     start = tw.step_batch(lg.thesis_grid(), duration=0.0)["final"]    # prepared, not yet run
     ticks, every = int(round(1.5 / tw.dt)), 16
@@ -586,7 +549,34 @@ def test_the_thesis_grid_on_a_plant_with_effects_keeps_the_leg_by_leg_outcomes(n
     vec, leg = run(start.copy()), run(_leg_by_leg(start))
     aborted = vec[0].ABORT[:, 1] != ABORT_NONE
     assert 0 < aborted.sum() < B                 # both outcomes occur on the grid
-    _assert_close(vec, leg)
+    _assert_same(vec, leg)
+
+
+def test_a_batch_of_one_takes_the_reference_path_and_compiles_nothing_twice(monkeypatch):
+    """A batch of one (a device, a point run alone) never takes the vectorized path, even in
+    a state that allows it: the vectorized path gives the reference's numbers bit for bit
+    (above), and a device never compiles it. A batch of two does take it. And the constant
+    arrays a batch of one and a batch of two hand the kernel have the same numba types (a
+    read-only view typed apart would compile every kernel twice)."""
+    from numba import typeof
+
+    from leglib.twin import kernel
+    calls = []
+    monkeypatch.setattr(kernel, "_run_block_vector", lambda *a: calls.append(a[:2]))
+    tw = Twin("bench", seed=2)
+    one = tw.step_batch(np.array([[50, 0.046, 0.001]]), duration=0.0)["final"]
+    assert _vector_block(0, 1, tw.FR[None, :], one.C, one.AI)
+    before = one.X.copy()
+    tw.run(one, ticks=50)
+    assert calls == [] and np.any(one.X != before)
+    two = tw.step_batch(np.array([[50, 0.046, 0.001]] * 2), duration=0.0)["final"]
+    P2 = np.broadcast_to(tw.P, (2, tw.P.size)).copy()
+    FR2 = np.broadcast_to(tw.FR, (2, tw.FR.size)).copy()
+    _run_serial(5, tw.dt, two.X, two.AS, two.AI, two.C, P2, FR2, np.full(2, tw.mech, np.int64), tw.DRV, two.RNG,
+                two.ABORT, np.zeros((2, 0, 2)), 1, np.zeros((2, 0, 5)), 0, 0, 2)
+    assert calls == [(0, 2)]
+    tw.run(tw._initial_state(2), ticks=1)
+    assert [typeof(a) for a in tw._fixed[1]] == [typeof(a) for a in tw._fixed[2]]
 
 
 def test_a_block_whose_board_checks_its_bus_runs_leg_by_leg():
