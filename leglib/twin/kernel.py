@@ -9,7 +9,8 @@ the current loop (the firmware's PI with its voltage limit on the motor's R, L a
 back-EMF, half a period late) and its fault checks, then the DC bus with the brake
 resistor, then the leg's mechanics (:mod:`leglib.twin.mechanics`). :func:`_run` shares the batch out in blocks over
 the cores; a block the vectorized path allows goes to :mod:`leglib.twin.vector`, every
-other one to :func:`_run_block`, the reference.
+other one to :func:`_run_block`, the reference, and so does a batch of one (a device):
+both paths give the same numbers, bit for bit.
 """
 
 from __future__ import annotations
