@@ -116,6 +116,27 @@ def _plain_block(b0, b1, P, FR, MECH):
     return _shared_block(b0, b1, P, FR, MECH)
 
 
+@njit(cache=True, inline="always")
+def _stops_and_accelerations(q1, dq1, q2, dq2, t1, t2, d11, d12, d22, stops, gap_min, k_stop, c_stop, gap_max):
+    """The joint accelerations of a leg of a block (:func:`_mechanics_plain`,
+    :func:`_mechanics_effects`), branch-free: the stop between the upper links (when
+    ``stops``, a five-bar's) added to the joint torques ``t1``, ``t2`` as
+    :func:`_mechanics_leg` adds it, then the 2x2 solve with the mass matrix (d11, d12, d22).
+    Returns (a1, a2, det, both finite)."""
+    gap = q2 - q1
+    push = k_stop * (gap_min - gap) - c_stop * (dq2 - dq1)
+    pull = k_stop * (gap - gap_max) + c_stop * (dq2 - dq1)
+    pushing = stops & (gap < gap_min) & (push > 0.0)
+    pulling = stops & (not (gap < gap_min)) & (gap > gap_max) & (pull > 0.0)
+    t1 = select(pushing, t1 - push, select(pulling, t1 + pull, t1))
+    t2 = select(pushing, t2 + push, select(pulling, t2 - pull, t2))
+    det = d11 * d22 - d12 * d12
+    inv_det = 1.0 / det
+    a1 = (d22 * t1 - d12 * t2) * inv_det
+    a2 = (-d12 * t1 + d11 * t2) * inv_det
+    return a1, a2, det, math.isfinite(a1) & math.isfinite(a2)
+
+
 @njit(cache=True, error_model="numpy")
 def _mechanics_plain(dt, FB, IB, nb, P, FR):
     """One tick of the mechanics of a block of ``nb`` legs that share one plain plant (the
@@ -142,19 +163,9 @@ def _mechanics_plain(dt, FB, IB, nb, P, FR):
         f2 = visc2 * dq2 + (coul2 + strib2) * _tanh(dq2 * inv_v_smooth)
         t1 = FB[_at(R_TAU, i)] - b1 - f1
         t2 = FB[_at(R_TAU + 1, i)] - b2 - f2
-        gap = q2 - q1
-        push = k_stop * (gap_min - gap) - c_stop * (dq2 - dq1)
-        pull = k_stop * (gap - gap_max) + c_stop * (dq2 - dq1)
-        pushing = (gap < gap_min) & (push > 0.0)
-        pulling = (not (gap < gap_min)) & (gap > gap_max) & (pull > 0.0)
-        t1 = (t1 - push) if pushing else ((t1 + pull) if pulling else t1)
-        t2 = (t2 + push) if pushing else ((t2 - pull) if pulling else t2)
-        det = d11 * d22 - d12 * d12
-        inv_det = 1.0 / det
-        a1 = (d22 * t1 - d12 * t2) * inv_det
-        a2 = (-d12 * t1 + d11 * t2) * inv_det
+        a1, a2, _, ok = _stops_and_accelerations(q1, dq1, q2, dq2, t1, t2, d11, d12, d22, True, gap_min, k_stop,
+                                                 c_stop, gap_max)
         alive = IB[_at(R_DEAD, i)] == 0
-        ok = math.isfinite(a1) & math.isfinite(a2)
         IB[_at(R_NF, i)] = 1 if (alive & (not ok)) else 0
         go = alive & ok
         dq1n = dq1 + a1 * dt
@@ -375,19 +386,9 @@ def _mechanics_effects(dt, FB, IB, nb, P, FR, MECH, DRV):
         b2 = select(fivebar, r5[4], 0.0)
         t1 = tj1 - b1 - FB[_at(R_F1, i)]
         t2 = tj2 - b2 - FB[_at(R_F2, i)]
-        gap = q2 - q1
-        push = k_stop * (gap_min - gap) - c_stop * (dq2 - dq1)
-        pull = k_stop * (gap - gap_max) + c_stop * (dq2 - dq1)
-        pushing = fivebar & (gap < gap_min) & (push > 0.0)
-        pulling = fivebar & (not (gap < gap_min)) & (gap > gap_max) & (pull > 0.0)
-        t1 = select(pushing, t1 - push, select(pulling, t1 + pull, t1))
-        t2 = select(pushing, t2 + push, select(pulling, t2 - pull, t2))
-        det = d11 * d22 - d12 * d12
-        inv_det = 1.0 / det
-        a1 = (d22 * t1 - d12 * t2) * inv_det
-        a2 = (-d12 * t1 + d11 * t2) * inv_det
+        a1, a2, det, ok = _stops_and_accelerations(q1, dq1, q2, dq2, t1, t2, d11, d12, d22, fivebar, gap_min, k_stop,
+                                                   c_stop, gap_max)
         alive = IB[_at(R_DEAD, i)] == 0
-        ok = math.isfinite(a1) & math.isfinite(a2)
         IB[_at(R_NF, i)] = select(alive & (not ok), 1, 0)
         go = alive & ok
         # a rigid belt: the joints advance here; a compliant one: in _belt_effects
