@@ -97,8 +97,6 @@ from .layout import (
     F_COG_A3,
     F_COG_C1,
     F_COG_ON,
-    F_COG_P1,
-    F_COG_P3,
     F_COG_PERIODS,
     F_COG_S3,
     F_DRIFT,
@@ -106,9 +104,9 @@ from .layout import (
     F_ENC_A1,
     F_ENC_A2,
     F_ENC_C1,
+    F_ENC_C2,
     F_ENC_ON,
-    F_ENC_P1,
-    F_ENC_P2,
+    F_ENC_S1,
     F_ENC_S2,
     F_FRIC_EXT,
     F_JM,
@@ -193,14 +191,12 @@ def effect_parameters(plant: PlantParams, leg: LegParams, dt: float) -> np.ndarr
         out[k(F_COG_ON)], out[k(F_COG_PERIODS)] = 1.0, plant.cogging_periods
         out[k(F_COG_A1):k(F_COG_A3) + 1] = amps
         phases = (plant.cogging_phase1, plant.cogging_phase2, plant.cogging_phase3)
-        out[k(F_COG_P1):k(F_COG_P3) + 1] = phases
         out[k(F_COG_C1):k(F_COG_S3) + 1] = [f(p) for p in phases for f in (math.cos, math.sin)]
     if plant.encoder_error1 + plant.encoder_error2 > 0.0:
         out[k(F_ENC_ON)] = 1.0
-        out[k(F_ENC_A1)], out[k(F_ENC_P1)] = plant.encoder_error1, plant.encoder_phase1
-        out[k(F_ENC_A2)], out[k(F_ENC_P2)] = plant.encoder_error2, plant.encoder_phase2
-        out[k(F_ENC_C1):k(F_ENC_S2) + 1] = [f(p) for p in (plant.encoder_phase1, plant.encoder_phase2)
-                                            for f in (math.cos, math.sin)]
+        for a1, c1, s1, amp, phase in ((F_ENC_A1, F_ENC_C1, F_ENC_S1, plant.encoder_error1, plant.encoder_phase1),
+                                       (F_ENC_A2, F_ENC_C2, F_ENC_S2, plant.encoder_error2, plant.encoder_phase2)):
+            out[k(a1)], out[k(c1)], out[k(s1)] = amp, math.cos(phase), math.sin(phase)
     if plant.lugre or plant.coulomb_asymmetry != 0.0 or plant.friction_drift > 0.0:
         out[k(F_FRIC_EXT)] = 1.0
         out[k(F_LUGRE_S0)], out[k(F_LUGRE_S1)] = plant.lugre_stiffness, plant.lugre_damping

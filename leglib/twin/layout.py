@@ -130,15 +130,14 @@ X_Z1, X_Z2 = 9, 10                               # LuGre bristle deflections [ra
 X_TRAVEL1, X_TRAVEL2 = 11, 12                    # accumulated joint travel [rad] (friction drift)
 N_X = 13
 # plant parameters FR[b, k] beyond the joints' friction (k < 14; see _run): the unmodeled
-# effects, each off at zero
+# effects, each off at zero. The cogging's and the encoder error's phases are kept as their
+# cosines and sines (F_COG_C1, F_COG_S1, ...: the host computes them once; each harmonic is
+# the sine of the angle plus its phase, by angle addition)
 (F_BELT_K, F_BELT_C, F_BACKLASH_HALF, F_JM, F_BELT_SUB, F_COG_ON, F_COG_PERIODS, F_COG_A1, F_COG_A2,
- F_COG_A3, F_COG_P1, F_COG_P2, F_COG_P3, F_ENC_ON, F_ENC_A1, F_ENC_P1, F_ENC_A2, F_ENC_P2, F_FRIC_EXT,
- F_LUGRE_S0, F_LUGRE_S1, F_ASYM, F_DRIFT, F_DRIFT_TRAVEL) = range(14, 38)
-# the cosines and sines of the cogging's and the encoder error's phases (computed once by the
-# host: each harmonic is a sine of the angle plus its phase, by angle addition)
-(F_COG_C1, F_COG_S1, F_COG_C2, F_COG_S2, F_COG_C3, F_COG_S3,
- F_ENC_C1, F_ENC_S1, F_ENC_C2, F_ENC_S2) = range(38, 48)
-N_FR = 48
+ F_COG_A3, F_COG_C1, F_COG_S1, F_COG_C2, F_COG_S2, F_COG_C3, F_COG_S3, F_ENC_ON, F_ENC_A1, F_ENC_C1,
+ F_ENC_S1, F_ENC_A2, F_ENC_C2, F_ENC_S2, F_FRIC_EXT, F_LUGRE_S0, F_LUGRE_S1, F_ASYM, F_DRIFT,
+ F_DRIFT_TRAVEL) = range(14, 43)
+N_FR = 43
 # legs per vector of the plain mechanics (see _run_block): 8 doubles fill an AVX-512
 # register, two AVX2 ones; a block of legs is one or two of these (a block that is not a
 # multiple leaves legs to the slower scalar remainder of the loop; more legs than 16 leave
