@@ -50,6 +50,17 @@ def _kernel_env(**env):
                 os.environ[k] = v
 
 
+# jupyter_client's words (client.py, wait_for_ready) for a kernel that was started and never
+# answered: most often a port it was given and another process took first (the kernel's
+# "Address already in use" on its standard error), a race of kernels started at once
+KERNEL_NOT_STARTED = ("Kernel died before replying to kernel_info", "Kernel didn't respond in")
+
+
+def kernel_not_started(exc: BaseException) -> bool:
+    """Whether ``exc`` is nbclient's start of a kernel that never answered (no cell ran)."""
+    return isinstance(exc, RuntimeError) and str(exc).startswith(KERNEL_NOT_STARTED)
+
+
 def execute(notebook: str | Path, out_dir: str | Path, parameters: dict | None = None,
             html: bool = True, progress: bool = False, timeout: int = 1200) -> Path:
     """Run one notebook with papermill from the repository root.
@@ -81,6 +92,9 @@ def execute(notebook: str | Path, out_dir: str | Path, parameters: dict | None =
         A cell ran past ``timeout``, or the kernel died, twice: on the twin such a run is
         tried once more (a retry of a real leg's notebook would move it again: on
         ``backend="usb"`` the first failure stands).
+    RuntimeError
+        The kernel did not start, twice (:func:`kernel_not_started`; a start that failed
+        once is tried again on any backend: no cell ran).
 
     The notebooks run on papermill's own engine; nbclient's kernel client is given the
     re-armed shell channel of :mod:`leglib.notebook.wakeup` (``kernel_manager_class``).
@@ -113,10 +127,14 @@ def execute(notebook: str | Path, out_dir: str | Path, parameters: dict | None =
             if log is not None:
                 log.finish(ok=True)
             break
-        except (CellTimeoutError, DeadKernelError) as exc:
+        except (CellTimeoutError, DeadKernelError, RuntimeError) as exc:
             if log is not None:
                 log.finish(ok=False)
-            if attempt == 2 or params.get("backend") == "usb":
+            # a kernel that never started ran no cell and moved nothing: tried again on a
+            # real leg too; a timed-out or dead run, on the twin only
+            retry = kernel_not_started(exc) or (isinstance(exc, (CellTimeoutError, DeadKernelError))
+                                                and params.get("backend") != "usb")
+            if attempt == 2 or not retry:
                 raise
             warnings.warn(f"{notebook.name}: {type(exc).__name__}: {str(exc).splitlines()[0]}; running it "
                           f"once more", RuntimeWarning, stacklevel=2)

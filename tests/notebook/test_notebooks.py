@@ -527,6 +527,36 @@ def test_a_run_says_its_sections_and_a_long_cell_while_it_runs(tmp_path, monkeyp
     assert "[08] 08_bad.ipynb: FAILED after" in capfd.readouterr().err
 
 
+def test_a_kernel_that_did_not_start_is_started_again_even_for_the_leg(tmp_path, monkeypatch):
+    """A kernel given a port another process took first dies before it answers (nbclient
+    raises jupyter_client's RuntimeError, client.py wait_for_ready): no cell ran, nothing
+    moved, so the run is tried again, on backend "usb" too. Another RuntimeError is not."""
+    import papermill
+
+    real, calls = papermill.execute_notebook, []
+
+    def first_start_fails(*args, **kwargs):
+        calls.append(kwargs["parameters"])
+        if len(calls) == 1:
+            raise RuntimeError("Kernel died before replying to kernel_info")
+        return real(*args, **kwargs)
+    monkeypatch.setattr(papermill, "execute_notebook", first_start_fails)
+    path = _notebook_with_cells(tmp_path / "nb.ipynb", ["answer = 6 * 7\nprint(answer)"])
+    with pytest.warns(RuntimeWarning, match="Kernel died before replying.*running it once more"):
+        out = execute(path, tmp_path / "out", {"backend": "usb"}, html=False)
+    assert len(calls) == 2
+    assert "42" in json.dumps(nbformat.read(str(out), as_version=4).cells[-1].outputs)
+
+    def other_error(*args, **kwargs):
+        calls.append(kwargs["parameters"])
+        raise RuntimeError("something else")
+    monkeypatch.setattr(papermill, "execute_notebook", other_error)
+    calls.clear()
+    with pytest.raises(RuntimeError, match="something else"):
+        execute(path, tmp_path / "out2", html=False)
+    assert len(calls) == 1
+
+
 def test_a_cell_past_the_timeout_names_the_cell_and_is_tried_once_more(tmp_path):
     """A cell that runs longer than execute's timeout stops the run with nbclient's
     CellTimeoutError, which shows the cell; on the twin the run is tried once more."""
