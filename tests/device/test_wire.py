@@ -342,3 +342,24 @@ def test_a_running_loop_is_left_alone():
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-3000:]
     assert out.stdout.split() == ["OK", "True"]
+
+
+def test_the_json_checksum_is_fibres_bitwise_crc16():
+    """The table CRC equals the bitwise definition (fibre's CRC16: polynomial 0x3D65, init
+    0x1337, MSB first) on random bytes of several lengths and on the board's own JSON."""
+    import numpy as np
+
+    def bitwise(data, crc=0x1337, poly=0x3D65):
+        for byte in data:
+            crc ^= byte << 8
+            for _ in range(8):
+                crc = (((crc << 1) ^ poly) if crc & 0x8000 else (crc << 1)) & 0xFFFF
+        return crc
+
+    rng = np.random.default_rng(7)
+    for n in (0, 1, 2, 3, 255, 4097):
+        data = rng.integers(0, 256, n, dtype=np.uint8).tobytes()
+        assert F._crc16(data) == bitwise(data), n
+    for version in F.FIRMWARE_TABLES:
+        raw, _ = F._table_raw(version)
+        assert F._crc16(raw) == bitwise(raw) != bitwise(raw[:-1]), version
