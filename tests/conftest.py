@@ -24,7 +24,7 @@ def pytest_configure(config):
     """Under pytest-xdist, the controller compiles the kernels (leglib.notebook.warmup, one
     process per group) while the workers start and collect, unless they are current (``make
     venv`` compiled them and no kernel source changed since); each worker waits for them
-    before its first test (:func:`_warm_kernels`). Without this, on a fresh clone every worker
+    before its first test (:func:`pytest_runtest_setup`). Without this, on a fresh clone every worker
     and every notebook kernel compiles the same kernels at the same time (a minute each):
     numba writes its cache only when a compile ends."""
     if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None) \
@@ -61,16 +61,24 @@ def pytest_unconfigure(config):
         shutil.rmtree(Path(done).parent, ignore_errors=True)
 
 
-@pytest.fixture(scope="session", autouse=True)
-def _warm_kernels():
-    """A worker's first test waits until the controller's compiles are done (a failed
-    compile is reported by the tests that use the kernel, not here)."""
+_warm = False   # this worker has seen the controller's compiles done
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    """Before a worker's test sets up its fixtures, it waits until the controller's compiles
+    are done (once: later tests find them done; a failed compile is reported by the tests
+    that use the kernel, not here). The wheel test does not wait: it compiles in an
+    environment and a numba cache of its own, on the cores the compile groups leave idle as
+    they end."""
+    global _warm
     done = os.environ.get(WARM_ENV)
-    if not done or not os.environ.get("PYTEST_XDIST_WORKER"):
+    if _warm or not done or not os.environ.get("PYTEST_XDIST_WORKER") or item.get_closest_marker("wheel"):
         return
     deadline = time.monotonic() + WARM_TIMEOUT_S
     while not os.path.exists(done) and time.monotonic() < deadline:
         time.sleep(0.2)
+    _warm = True
 
 
 # -- the order of the tests: the long ones first -----------------------------------------------
