@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import collections
 import inspect
-import io as _io
 import math
 import os
 import pickle
@@ -50,9 +49,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
 from ..plots import leg_points
+from . import png as _png
 
 FIELDS = ("t", "q1", "q2", "iq1", "iq2", "sp1", "sp2")
 
@@ -265,10 +264,7 @@ class _Plot:
         for art in L.values():
             art.axes.draw_artist(art)
         fig.draw_artist(self._text)
-        rgba = np.asarray(canvas.buffer_rgba())
-        out = _io.BytesIO()
-        Image.fromarray(rgba[..., :3]).save(out, format="png", compress_level=1)
-        return out.getvalue()
+        return _png.encode(np.asarray(canvas.buffer_rgba()))
 
 
 

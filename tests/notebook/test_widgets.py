@@ -7,6 +7,7 @@ import leglib as lg
 from leglib import model as M
 from leglib.design.points import identify_response
 from leglib.device.virtual.wire import forget, serial_for_seed
+from leglib.errors import ArgumentError
 from leglib.notebook import widgets
 
 matplotlib.use("Agg")
@@ -156,6 +157,41 @@ def test_a_panel_figure_redraws_what_changed_and_keeps_the_rest():
     x, y = view.axes[1].transData.transform((0.2, 0.8))
     px = (int(h - y), int(x))
     assert tuple(first[px][:3]) != (255, 255, 255) and tuple(second[px][:3]) == (255, 255, 255)
+    # the second update drew only the data over the kept frame (ticks, labels): one frame drawn
+    assert view.frames_drawn == 1
+    # new limits and a new title: the frame is drawn again, and the update is still the full draw
+    ax = view.clear()[0]
+    ax.plot([0, 2], [5, -5], "b-")
+    ax.set_ylim(-6, 6)
+    ax.set_title("moved")
+    third = _pixels(view.png())
+    assert view.frames_drawn == 2
+    FigureCanvasAgg(view.fig).draw()
+    assert np.array_equal(third, np.asarray(view.fig.canvas.buffer_rgba()))
+
+
+def test_a_panel_figures_autoscaled_axes_keep_their_limits_while_the_data_fits():
+    """An autoscaled dynamic axis keeps the limits shown while the new data's own limits
+    lie inside them and span at least ``keep`` of them; data that outgrows them, or
+    shrinks below ``keep``, gets its own limits."""
+    import ipywidgets as W
+
+    view = widgets.PanelFigure(W.Output(), 1, (4, 3), keep=0.6)
+
+    def shown(y):
+        ax = view.clear()[0]
+        ax.plot([0.0, 1.0], y)
+        view.png()
+        return ax.get_ylim()
+
+    first = shown([0.0, 10.0])
+    assert shown([1.0, 9.0]) == first                       # inside, 80 % of the span: kept
+    grown = shown([0.0, 12.0])
+    assert grown != first and grown[1] > 12.0                # outgrown: its own limits
+    small = shown([0.0, 3.0])
+    assert small[1] < 4.0                                    # below 60 % of the span: its own
+    with pytest.raises(ArgumentError, match="keep"):
+        widgets.PanelFigure(W.Output(), 1, (4, 3), keep=0.0)
 
 
 def test_the_pole_panels_picture_reads(leg, monkeypatch):
