@@ -394,9 +394,11 @@ class Deadline:
     def expired(self) -> bool:
         return self.dev.time() > self.t_dev or time.monotonic() > self.t_wall
 
-    def check(self, detail: str = "") -> None:
+    def check(self, detail=lambda: "") -> None:
+        """Raise ExperimentError once the time is up; ``detail()`` (a callable, so that what
+        it reads from the device is read only then, not on every poll) ends its message."""
         if self.expired():
-            raise ExperimentError(f"{self.what} did not finish within {self.seconds:g} s{detail}: "
+            raise ExperimentError(f"{self.what} did not finish within {self.seconds:g} s{detail()}: "
                                   f"axes set IDLE")
 
 
@@ -417,7 +419,7 @@ def wait_states(dev: Device, axes, state: int, timeout: float = STATE_TIMEOUT, p
             if pending[a] == AXIS_STATE_UNDEFINED and states[a] == AXIS_STATE_IDLE and state != AXIS_STATE_IDLE:
                 raise ExperimentError(f"axis{a} did not enter state {state} (it is IDLE): "
                                       f"{error_text(dev, a)}")
-        deadline.check(f" (states {states})")
+        deadline.check(lambda: f" (states {states})")
         dev.sleep(poll)
 
 

@@ -620,7 +620,7 @@ def _calibrate_axes(dev: Device, axes, timeout: float, poll: float) -> None:
                 if int(dev.get(a, "requested_state")) == AXIS_STATE_UNDEFINED \
                         and int(dev.get(a, "current_state")) == AXIS_STATE_IDLE:
                     break
-                deadline.check(f" (state {state_name(int(dev.get(a, 'current_state')))})")
+                deadline.check(lambda: f" (state {state_name(int(dev.get(a, 'current_state')))})")
             if int(dev.get(a, "error")) or not bool(dev.get(a, "is_ready")):
                 raise ExperimentError(f"axis{a} calibration failed: {describe_errors(errors(dev))}"
                                       f"{_calibration_advice(dev, a)}")
