@@ -121,3 +121,25 @@ class _Done:
 
     def poll(self):
         return 0
+
+
+
+def test_a_group_runs_on_one_stack_chunk_and_returns_or_raises_as_called(monkeypatch):
+    """A group's function is called through a frame that reserves 512 KiB of value stack
+    (its deep recursion then stays in one chunk of CPython's frame stack); deep calls run
+    under it, and a group's exception comes out of main unchanged."""
+    assert warmup._on_one_stack_chunk.__code__.co_stacksize >= 1 << 16
+
+    def deep(n=0):
+        return n if n == 500 else deep(n + 1)
+
+    assert warmup._on_one_stack_chunk(deep) == 500
+    ran = []
+
+    def boom():
+        raise KeyError("boom")
+
+    monkeypatch.setattr(warmup, "_RUN", {"a": lambda: ran.append("a"), "boom": boom})
+    assert warmup.main(["a"]) == 0 and ran == ["a"]
+    with pytest.raises(KeyError, match="boom"):
+        warmup.main(["boom"])
