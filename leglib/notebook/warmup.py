@@ -64,6 +64,9 @@ def _device():
     st = twin._initial_state(2)
     st.C[:, 0, C_VBUS_CHECKS] = 1.0
     twin.run(st, ticks=8)
+    # a plant's encoder error read from the host (Twin.encoder_turns)
+    from ..twin.effects import _encoder_error  # load time: as above
+    _encoder_error(twin.FR[None, :], 0, 0.0)
 
 
 def _batch():
@@ -85,6 +88,7 @@ def _fits():
     second_order(t, y)
     fastfit.fit_packed([t] * fastfit.PARALLEL_FROM, [y] * fastfit.PARALLEL_FROM)
     fastfit.shape_numbers([t], [y])
+    fastfit.refit_from([t], [y], [[0.24, 31.4, 0.05, 0.0, 0.01]])   # a fit's refits on parts of its record
     leg = load_leg("thesis")
     q1, q2 = np.full(3, leg.q1), np.full(3, leg.q2)
     M.mass_matrix(leg, q1, q2)
