@@ -267,7 +267,7 @@ def _call(fn):
 # in the batch group about 5 M page faults, 34 of its 88 CPU-s in the kernel (perf, on the
 # page-fault event). Called through this frame, the compile runs in the rest of the 1 MiB
 # chunk made for it and never crosses an end: the batch group in 50 CPU-s (0.2 M faults),
-# the device group 45-64 -> 41-49 CPU-s. On other Pythons it is an ordinary call.
+# the device group 45-64 -> 42-49 CPU-s. On other Pythons it is an ordinary call.
 _on_one_stack_chunk = types.FunctionType(_call.__code__.replace(co_stacksize=1 << 16), globals())
 
 
