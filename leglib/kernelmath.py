@@ -16,6 +16,8 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
+from . import _numba_inline  # noqa: F401  (before any kernel compiles)
+
 
 @intrinsic
 def fma(typingctx, a, b, c):

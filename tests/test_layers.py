@@ -13,8 +13,8 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent / "leglib"
 
 LAYERS = [
-    ("leglib._version", "leglib.errors", "leglib.checks", "leglib.kernelmath", "leglib.abort", "leglib.params",
-     "leglib.units"),
+    ("leglib._version", "leglib._numba_inline", "leglib.errors", "leglib.checks", "leglib.kernelmath", "leglib.abort",
+     "leglib.params", "leglib.units"),
     ("leglib.model",),
     ("leglib.plots",),
     ("leglib.twin",),

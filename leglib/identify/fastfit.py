@@ -27,6 +27,8 @@ import math
 import numpy as np
 from numba import njit, prange, set_parallel_chunksize
 
+from .. import _numba_inline  # noqa: F401  (before any kernel compiles)
+
 # status codes of one response (their messages: _error)
 OK, SHORT, NONFINITE, NOT_INCREASING, FLAT, NOT_STEP, ZETA_BOUND, LOW_R2, NO_DECAY = range(9)
 MIN_R2 = 0.5          # below this the data is not a second-order step response

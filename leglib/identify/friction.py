@@ -18,7 +18,10 @@ import numpy as np
 from numba import njit
 from scipy.optimize import least_squares
 
-from .. import checks
+from .. import (
+    _numba_inline,  # noqa: F401  (before any kernel compiles)
+    checks,
+)
 from ..errors import IdentificationError
 from ..model.dynamics import (
     bias_torque,

@@ -8,6 +8,8 @@ import math
 
 from numba import njit
 
+from .. import _numba_inline  # noqa: F401  (before any kernel compiles)
+
 
 @njit(cache=True)
 def parallelogram_terms(q1, q2, dq1, dq2, P):

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import get_num_threads, set_parallel_chunksize
 
+from .. import _numba_inline  # noqa: F401  (before any kernel compiles)
 from ..abort import ABORT_NONE
 from ..model.drive import AxisMap
 from ..model.dynamics import mass_matrix
