@@ -146,6 +146,15 @@ def test_calibrating_while_a_calibration_still_runs_says_so(dev):
         lg.calibrate(dev)
 
 
+def _faster_scan(dev):
+    """The encoder scan at twice the firmware's default speed (calib_scan_omega 8 pi rad/s
+    electrical against 4 pi, encoder.hpp:23 of fw-v0.5.6; a setting the firmware accepts,
+    and the twin's scan still passes its CPR check, which fails at three times): the same
+    transactions in the same order, in about 280 instead of 480, each cut."""
+    for a in (0, 1):
+        dev.axis(a).encoder.config.calib_scan_omega = 2 * V.CALIB_SCAN_OMEGA
+
+
 def _count(dev, operation):
     n0 = dev.sim.transactions
     operation(dev)
@@ -156,6 +165,8 @@ def _count(dev, operation):
 @pytest.mark.parametrize("operation", sorted(OPERATIONS))
 def test_a_link_lost_at_any_transaction_leaves_both_axes_idle(dev, operation):
     run = OPERATIONS[operation]
+    if operation == "calibrate":   # the cases cost n^2 transactions: the same calibration, shorter
+        _faster_scan(dev)
     n = _count(dev, run)
     assert n > 3
     for k in range(n):
