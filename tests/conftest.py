@@ -70,8 +70,10 @@ def pytest_runtest_setup(item):
     are done (once: later tests find them done; a failed compile is reported by the tests
     that use the kernel, not here). The wheel test does not wait: it compiles in an
     environment and a numba cache of its own, on the cores the compile groups leave idle as
-    they end."""
+    they end. A test whose xdist_group was lost fails here, before its fixtures (below)."""
     global _warm
+    if LOST_GROUP in item.stash:
+        pytest.fail(item.stash[LOST_GROUP], pytrace=False)
     done = os.environ.get(WARM_ENV)
     if _warm or not done or not os.environ.get("PYTEST_XDIST_WORKER") or item.get_closest_marker("wheel"):
         return
@@ -83,15 +85,24 @@ def pytest_runtest_setup(item):
 
 # -- the order of the tests: the long ones first -----------------------------------------------
 
+LOST_GROUP = pytest.StashKey[str]()     # why the test lost its xdist_group (see below)
 LONG_MARKERS = ("wheel", "browser", "notebook", "slow")   # longest first
 
 
-@pytest.hookimpl(tryfirst=True)
+@pytest.hookimpl(wrapper=True)
 def pytest_collection_modifyitems(config, items):
     """Notebook, browser and wheel tests are slow too (``-m "not slow"`` leaves them all out);
     and the slow tests go first: pytest-xdist hands the tests out in this order, so the
     long ones start early and the short ones fill the workers' ends instead of one long test
-    running on alone at the end (the browser tests stay on one worker: xdist_group "lab")."""
+    running on alone at the end (the browser tests stay on one worker: xdist_group "lab").
+
+    After the other plugins (a wrapper), with ``--dist loadgroup`` a worker's tests marked
+    ``xdist_group`` must carry their group in their node id: pytest-xdist writes it there and
+    its scheduler reads it back. Where that write is lost (pytest 9.2 with pytest-xdist 3.8,
+    pytest-dev/pytest-xdist#1386) a group's tests spread over the workers, each starting its
+    own JupyterLab or sympy derivation: those tests fail, saying why, rather than run slower
+    in silence (an error raised here would reach pytest-xdist's controller only as a crashed
+    worker, without its message)."""
     def rank(item):
         marks = {m.name for m in item.iter_markers()}
         return next((k for k, name in enumerate(LONG_MARKERS) if name in marks), len(LONG_MARKERS))
@@ -100,6 +111,16 @@ def pytest_collection_modifyitems(config, items):
         if rank(item) < len(LONG_MARKERS):
             item.add_marker(pytest.mark.slow)
     items.sort(key=rank)   # stable: the collection's order within each rank
+    result = yield
+    if hasattr(config, "workerinput") and config.getvalue("loadgroup"):
+        lost = [item for item in items
+                if item.get_closest_marker("xdist_group") and "@" not in item.nodeid.rpartition("]")[2]]
+        for item in lost:
+            item.stash[LOST_GROUP] = (
+                f"--dist loadgroup lost this test's xdist_group {item.get_closest_marker('xdist_group').args}: "
+                f"pytest {pytest.__version__} with this pytest-xdist does not group tests "
+                "(pytest-dev/pytest-xdist#1386); install environment.txt's pins (make venv)")
+    return result
 
 
 @pytest.fixture(scope="session")
