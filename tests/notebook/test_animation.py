@@ -54,6 +54,7 @@ def test_short_runs_and_bad_input(leg):
     q1, q2, t = _motion(leg, n=5)
     anim = plots.animate_leg(leg, q1, q2, t, max_frames=60)
     assert list(anim.frame_index) == [0, 1, 2, 3, 4]
+    anim.figure.canvas.draw()   # drawn, as a notebook does: else matplotlib warns when it goes
     with pytest.raises(ValueError, match="one length"):
         plots.animate_leg(leg, q1, q2[:3], t)
     with pytest.raises(ValueError, match="strictly increasing"):
