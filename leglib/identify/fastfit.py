@@ -275,6 +275,15 @@ def _solve_spd(M, b, x):
 
 
 @njit(cache=True)
+def _jacobian_normal_equations(t, y, p, A, g, dt):
+    """:func:`_normal_equations` with the Jacobian, for a caller outside the kernels. From
+    Python the flag would be a plain bool, a third compile of that function beside the two
+    the kernels use (their constant ``True`` and ``False`` are typed as literals); through
+    here the caller shares the kernels' ``True`` one."""
+    return _normal_equations(t, y, p, A, g, True, dt)
+
+
+@njit(cache=True)
 def _levenberg_marquardt(t, y, p, lo, hi, max_iter, dt):
     """Bounded Levenberg-Marquardt from ``p`` (changed in place) with Marquardt's scaling
     (the diagonal of J^T J); a parameter on a bound that the gradient pushes outward is

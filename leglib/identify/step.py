@@ -62,7 +62,7 @@ from .fastfit import (
     ZETA_MAX,
     ZETA_MIN,
     _fit,
-    _normal_equations,
+    _jacobian_normal_equations,
     _pack,
     _shapes,
     model,
@@ -304,7 +304,7 @@ def standard_errors(fit: "SecondOrderFit", t, y) -> dict:
     if np.any(np.abs(t - dt * np.arange(n)) > 1e-9 * dt):
         dt = 0.0
     JtJ = np.empty((5, 5))
-    _normal_equations(t, y, p, JtJ, np.empty(5), True, dt)
+    _jacobian_normal_equations(t, y, p, JtJ, np.empty(5), dt)
     s2 = float(np.dot(r, r)) / max(n - p.size, 1) * max(_autocorrelation_time(r), 1.0)
     try:
         cov = s2 * np.linalg.inv(JtJ)

@@ -613,9 +613,9 @@ def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, 
     shared = (not plain) and _shared_block(b0, b1, P, FR, MECH)
     FB = np.zeros(N_FROWS_EFFECTS * LANES)
     IB = np.zeros(N_IROWS * LANES, np.int64)
-    enc = False
-    for b in range(b0, b1):
-        enc = enc or FR[b, F_ENC_ON] > 0.0
+    # any leg's encoder with a reading error; computed, not grown from the constant False (numba
+    # would type the call below for Literal[bool](False) too, and compile _control_vector twice)
+    enc = (FR[b0:b1, F_ENC_ON] > 0.0).any()
     # the leg-by-leg mechanics' per-leg invariants and scratch, as kernel._run_block's
     INV_VS, INV_VSM = np.empty(nb), np.empty(nb)
     TM = np.zeros((nb, 2))

@@ -143,3 +143,50 @@ def test_a_group_runs_on_one_stack_chunk_and_returns_or_raises_as_called(monkeyp
     assert warmup.main(["a"]) == 0 and ran == ["a"]
     with pytest.raises(KeyError, match="boom"):
         warmup.main(["boom"])
+
+
+def _literal_twins(signatures) -> list:
+    """Pairs of one kernel's compiled signatures where the first is the second with some
+    argument types literal (``Literal[bool](False)`` for ``bool``)."""
+    from numba.core import types
+
+    pairs = []
+    for lit in signatures:
+        plain = tuple(types.unliteral(t) for t in lit)
+        if plain != tuple(lit) and any(tuple(other) == plain for other in signatures):
+            pairs.append((lit, plain))
+    return pairs
+
+
+def test_literal_twins_are_found():
+    from numba.core import types
+
+    lit = (types.int64, types.literal(False))
+    assert _literal_twins([lit, (types.int64, types.boolean)]) == [(lit, (types.int64, types.boolean))]
+    # two literals of one argument are two specializations the code asks for (a branch
+    # pruned in each), not a twin
+    assert _literal_twins([lit, (types.int64, types.literal(True))]) == []
+
+
+def test_no_kernel_is_compiled_again_for_a_literal_argument():
+    """numba types a kernel's call with a constant argument for its literal type: a kernel
+    called both with a constant and with a variable of the same type is compiled twice
+    (``_control_vector`` was, for ``Literal[bool](False)`` and ``bool``: a third of the
+    batch group's compile, for code no run uses). numba's cache index of each compiled
+    kernel (after this session's compile) holds no such pair."""
+    import pickle
+
+    warmup.ensure(stream=io.StringIO())   # current, or compiled now
+    found, twins = 0, {}
+    for index in warmup.cached_files():
+        if index.suffix != ".nbi":
+            continue
+        with open(index, "rb") as f:
+            pickle.load(f)                                   # numba's version
+            _stamp, overloads = pickle.loads(f.read())
+        sigs = [key[0] for key in overloads]
+        found += len(sigs)
+        if _literal_twins(sigs):
+            twins[index.name] = [[str(t) for t in lit] for lit, _ in _literal_twins(sigs)]
+    assert found >= 40, f"only {found} compiled kernels found under {warmup.cache_dir()}"
+    assert not twins, twins
