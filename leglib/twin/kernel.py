@@ -188,7 +188,7 @@ from .layout import (
     V_MAX_PER_VBUS,
     X_PHI1,
 )
-from .mechanics import _at, _mechanics_leg, _mechanics_plain, _param_row, _plain_block
+from .mechanics import _at, _mechanics_leg_apart, _mechanics_plain, _param_row, _plain_block
 from .rng import _normal
 from .stages import (
     TWO_PI,
@@ -404,7 +404,7 @@ def _joint_of(a, DRV):
     return j0 if a == 0 else 1 - j0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)   # a rare tick's work: compiled apart (see _run_block_ticks)
 def _calibration_tick(b, a, i, turns, rng, dt, C, AS, FB, DRV, inv_vbus):
     """encoder.cpp:328-461, motor.cpp:416-463: an open-loop lock or scan at
     calibration_current (the axis state machine of leglib.device.virtual.firmware moves
@@ -445,7 +445,7 @@ def _disarmed(b, a, i, AS, AI, FB, DRV, iq_sp_idle, fw056):
     FB[_at(R_TAU + _joint_of(a, DRV), i)] = 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)   # a rare tick's work: compiled apart (see _run_block_ticks)
 def _trap_traj(b, a, dt, C, AS, AI, fw056):
     """controller.cpp:245-269 (the planned trajectory of trapTraj.cpp evaluated at its time;
     its end drops the configured mode into position control and holds the goal: Xf on 0.5.6,
@@ -615,7 +615,7 @@ def _controller_update(k, b, a, dt, C, AS, AI, TT, tt_period, fw056):
     return 0, torque
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)   # a rare tick's work: compiled apart (see _run_block_ticks)
 def _step_abort(b, a, mode, pe, C, AS):
     """leglib's abort rule (:mod:`leglib.abort`) on an axis in position control during a
     step (C_ABORT_ERROR > 0): the position error past the bound, or an oscillation that does
@@ -630,7 +630,7 @@ def _step_abort(b, a, mode, pe, C, AS):
     return ABORT_NONE
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)   # a rare tick's work: compiled apart (see _run_block_ticks)
 def _motor_failed(b, a, i, motor_error, AS, AI, FB, DRV):
     """A fault in the motor's update (the current trip, motor.cpp:631-644; a NaN modulation,
     foc.cpp:31-32): its error and the axis's MOTOR_FAILED set, the axis disarmed at once --
@@ -688,7 +688,7 @@ def _motor_tick(b, a, i, torque, ve, w_joint, rng, C, AS, AI, FB, DRV, inv_kt, i
     return rng, ib
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)   # a rare tick's work: compiled apart (see _run_block_ticks)
 def _controller_failed(b, a, err, mode, fw056, C, AI):
     """What a failed controller update leaves (0.5.6: main.cpp:443-445 the axis error,
     motor.cpp:515-518 the motor without a torque once connected to the controller, and for
@@ -783,7 +783,7 @@ def _bus_tick(b, i, ibus_axes, C, AS, AI, FB, inv_vbus, inv_brake_r):
     FB[_at(R_TAU + 1, i)] = 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)   # a rare tick's work: compiled apart (see _run_block_ticks)
 def _abort_step(k, b, i, code, AS, AI, FB, ABORT):
     """leglib's abort: both axes IDLE (as a request of IDLE does: the controller keeps its
     state, motor.cpp:218-228), no current; the first abort's tick and reason recorded."""
@@ -843,6 +843,14 @@ def _run_block(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, 
         RNG[b0 + i] = RNGL[i]
 
 
+# The stages a tick runs every time are inlined into this loop (numba's inline="always"); the
+# ones only a rare tick runs (a calibration, a trapezoidal move, a fault, an abort) and the
+# mechanics of a plant with unmodeled effects (mechanics._mechanics_leg_apart) are functions
+# of their own. numba's passes over one function take time that grows faster than its size:
+# this loop with all of them inlined took 27 s of the device group's 33 s to compile, apart
+# about a third less, with the same ticks per second (benchmarks device_tick and a mixed
+# batch leg by leg) and the same numbers (tests/twin: the vectorized path bit for bit).
+#
 # numba's runtime (NRT) counts references to every array a function holds: each array
 # argument of each inlined stage is a new reference, taken and dropped with an atomic
 # operation, and in this loop's branching body most of those pairs survive numba's
@@ -879,7 +887,9 @@ def _run_block_ticks(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, ABORT,
             rng = RNGL[i]
             _board_checks(b, C, AS, AI)
             ibus_axes = 0.0
-            abort_code = ABORT_NONE
+            # an int64 from the start: grown from the constant, _abort_step would also be compiled
+            # for its literal 0 (tests/notebook/test_warmup.py)
+            abort_code = np.int64(ABORT_NONE)
             for a in range(2):
                 j = _joint_of(a, DRV)
                 q = FB[_at(R_Q + 2 * j, i)] if plain else X[b, 2 * j]
@@ -915,7 +925,7 @@ def _run_block_ticks(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, ABORT,
                 b = b0 + i
                 tau2[0], tau2[1] = FB[_at(R_TAU, i)], FB[_at(R_TAU + 1, i)]
                 Pb = Pb_first if i == 0 else _param_row(P, b)
-                if _mechanics_leg(b, k, dt, X, AI, FR, MECH, DRV, ABORT, Pb, tau2, TM[i], INV_VS[i],
+                if _mechanics_leg_apart(b, k, dt, X, AI, FR, MECH, DRV, ABORT, Pb, tau2, TM[i], INV_VS[i],
                                   INV_VSM[i]):
                     IB[_at(R_DEAD, i)] = 1
     if plain:

@@ -238,6 +238,15 @@ def _mechanics_leg(b, k, dt, X, AI, FR, MECH, DRV, ABORT, Pb, tau, tm, inv_v_str
     return False
 
 
+@njit(cache=True, _nrt=False)
+def _mechanics_leg_apart(b, k, dt, X, AI, FR, MECH, DRV, ABORT, Pb, tau, tm, inv_v_stribeck, inv_v_smooth):
+    """:func:`_mechanics_leg` compiled as a function of its own, for the reference tick loop
+    (kernel._run_block_ticks, which it would otherwise grow by a fifth; see there). The
+    vectorized path's leg-by-leg mechanics inline it: called apart there, a mixed batch
+    ran a fifth slower. Allocates nothing, so, as that loop, without numba's runtime."""
+    return _mechanics_leg(b, k, dt, X, AI, FR, MECH, DRV, ABORT, Pb, tau, tm, inv_v_stribeck, inv_v_smooth)
+
+
 @njit(cache=True)
 def _shared_block(b0, b1, P, FR, MECH):
     """Whether legs b0..b1-1 share one plant, any (see :func:`_mechanics_effects`)."""
