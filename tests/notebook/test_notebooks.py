@@ -565,3 +565,18 @@ def test_a_cell_past_the_timeout_names_the_cell_and_is_tried_once_more(tmp_path)
     with pytest.warns(RuntimeWarning, match="running it once more"), pytest.raises(CellTimeoutError) as err:
         execute(path, tmp_path / "out", timeout=2, html=False)
     assert "the slow cell" in str(err.value)
+
+
+@pytest.mark.parametrize("backend, exits", [("usb", True), ("virtual", False)])
+def test_the_kernel_exits_on_its_own_on_the_leg_and_is_stopped_on_the_twin(tmp_path, backend, exits):
+    """After the last cell, a run on the leg asks its kernel to exit and waits for it: the
+    kernel's exit handlers run (whatever a library registered to release the board). On the
+    twin nothing waits on them, and the kernel is stopped at once."""
+    marker = tmp_path / "exited"
+    path = _notebook_with_cells(tmp_path / "nb.ipynb", [
+        "backend = 'virtual'", f"import atexit, pathlib\natexit.register(pathlib.Path({str(marker)!r}).touch)"])
+    nb = nbformat.read(str(path), as_version=4)
+    nb.cells[0].metadata["tags"] = ["parameters"]
+    nbformat.write(nb, str(path))
+    execute(path, tmp_path / "out", {"backend": backend}, html=False)
+    assert marker.exists() == exits
