@@ -926,7 +926,7 @@ def _run_block_ticks(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, ABORT,
                 tau2[0], tau2[1] = FB[_at(R_TAU, i)], FB[_at(R_TAU + 1, i)]
                 Pb = Pb_first if i == 0 else _param_row(P, b)
                 if _mechanics_leg_apart(b, k, dt, X, AI, FR, MECH, DRV, ABORT, Pb, tau2, TM[i], INV_VS[i],
-                                  INV_VSM[i]):
+                                        INV_VSM[i]):
                     IB[_at(R_DEAD, i)] = 1
     if plain:
         for i in range(nb):

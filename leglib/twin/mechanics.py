@@ -241,9 +241,9 @@ def _mechanics_leg(b, k, dt, X, AI, FR, MECH, DRV, ABORT, Pb, tau, tm, inv_v_str
 @njit(cache=True, _nrt=False)
 def _mechanics_leg_apart(b, k, dt, X, AI, FR, MECH, DRV, ABORT, Pb, tau, tm, inv_v_stribeck, inv_v_smooth):
     """:func:`_mechanics_leg` compiled as a function of its own, for the reference tick loop
-    (kernel._run_block_ticks, which it would otherwise grow by a fifth; see there). The
-    vectorized path's leg-by-leg mechanics inline it: called apart there, a mixed batch
-    ran a fifth slower. Allocates nothing, so, as that loop, without numba's runtime."""
+    (kernel._run_block_ticks, whose compile it would otherwise lengthen by about a third; see
+    there). The vectorized path's leg-by-leg mechanics inline it: called apart there, a mixed
+    batch ran a fifth slower. Allocates nothing, so, as that loop, without numba's runtime."""
     return _mechanics_leg(b, k, dt, X, AI, FR, MECH, DRV, ABORT, Pb, tau, tm, inv_v_stribeck, inv_v_smooth)
 
 
