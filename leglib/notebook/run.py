@@ -116,7 +116,8 @@ def execute(notebook: str | Path, out_dir: str | Path, parameters: dict | None =
     out = out_dir / notebook.name
     # after the last cell: on the leg the kernel is asked to exit and given the time to (its
     # exit handlers run, the odrive library's among them); on the twin it is stopped at once,
-    # as nothing outside it waits on its exit (about 0.5 s a run: numba's and matplotlib's teardown)
+    # as nothing outside it waits on its exit (a kernel with leglib loaded took 0.6-1.0 s to
+    # exit, an empty one 0.2 s: the teardown of what it imported)
     shutdown = "graceful" if params.get("backend") == "usb" else "immediate"
     for attempt in (1, 2):
         hooks, log = {}, None
