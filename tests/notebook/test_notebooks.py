@@ -303,7 +303,6 @@ def test_04_pid_sweeps(sweep04):
         assert "(90 % interval; no usable reading's interval reaches above" in text
 
 
-@pytest.mark.notebook
 def _without_intervals(obj):
     """``obj`` (a robustness table's JSON) as a table written before the intervals were stored."""
     drop = {"zeta_interval", "fn_interval_hz", "error_interval", "median_interval", "worst_interval"}
@@ -314,6 +313,7 @@ def _without_intervals(obj):
     return obj
 
 
+@pytest.mark.notebook
 def test_05_validation(sweep04, tmp_path):
     """Notebook 05 started from 04's saved design and the repository's robustness table, both
     written as files of before intervals were stored (their values only): they load, say "no
