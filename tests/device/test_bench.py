@@ -245,6 +245,7 @@ def test_same_boot_from_uptime_and_elapsed_time(noted_ms, uptime_ms, passed, sam
 # the USB code path: a day of notebooks 02-05 on one powered board
 # ---------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_notebooks_02_to_05_on_one_board_configure_once_and_calibrate_once(usb, requests, tmp_path):
     """The experiments of notebooks 02-05, each notebook's sessions as the notebook opens
     them, through leglib's USB code path: the board is configured (saved, one reboot) once
@@ -360,6 +361,7 @@ def test_the_plan_agrees_with_the_rehearsal():
     assert r.to_dict()["planned_s"] == run.planned
 
 
+@pytest.mark.slow
 def test_the_estimate_agrees_with_a_real_time_run():
     """The rehearsal's bench time (a twin at full speed, its steps run in the kernel)
     against the wall-clock time of the same run on a twin in real time (polled, as on the

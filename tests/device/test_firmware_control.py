@@ -207,6 +207,7 @@ def test_leglibs_own_runs_keep_their_margin_to_the_idle_trip():
     assert all(int(sim.st.AI[0, a, L.I_CTRL_ERR]) == 0 and int(sim.st.AI[0, a, L.I_AXIS_ERR]) == 0 for a in (0, 1))
 
 
+@pytest.mark.slow
 def test_the_thesis_grid_falls_within_its_trip():
     """The thesis grid's 400 steps on the twin (firmware 0.5.6's controller), each followed
     by the IDLE fall a real sweep leaves the leg to: no point flags OVERSPEED. Completed

@@ -230,6 +230,7 @@ def _odrivetool(args: list[str], script: str, timeout: float = 120.0) -> subproc
                           capture_output=True, timeout=timeout, cwd=ROOT, env=env)
 
 
+@pytest.mark.slow
 def test_odrivetool_shell_in_ipython():
     """odrivetool's shell (shell.py launch_shell) on a virtual board: odrv0 is there with
     the board's identity; after a reboot the device manager reports it lost and finds it

@@ -273,6 +273,7 @@ def test_switches_are_booleans_only(option, value, message):
         find_any(seed=9771, **{option: value})
 
 
+@pytest.mark.slow
 def test_the_virtual_timeline_does_not_depend_on_the_client_threads():
     """The client's device manager rediscovers a rebooted board on its own thread and reads
     its identity when it connects it (odrive 0.6.11 runtime_device.py:81-124). Those reads

@@ -72,6 +72,7 @@ def _check_dynamics(d):
     return True
 
 
+@pytest.mark.slow
 def test_methods_on_the_default_plant_score_as_measured():
     res = R.evaluate("default", quick=True, methods=("second order", "model", "design"), seed=171)
     so, de, mo = res["second order"], res["design"], res["model"]

@@ -120,6 +120,7 @@ def test_the_files_leglib_wrote_before_read_and_keep_their_bytes_and_hashes(tmp_
     assert measurements.write_batch(tmp_path, series, {}).read_bytes() == b.read_bytes()
 
 
+@pytest.mark.slow
 def test_a_large_table_round_trips_exactly():
     """120,000 rows (a batch's size): the text is Python's, numpy reads float's numbers,
     and the checks hold anywhere in it (time increasing, a bad line at the end)."""
@@ -147,6 +148,7 @@ def test_a_large_table_round_trips_exactly():
         assert _parse_plain(b"\n".join(cut), 3, False, ()) is None
 
 
+@pytest.mark.slow
 def test_numpys_reading_is_floats():
     rng = np.random.default_rng(8)
     for data in _tables():

@@ -229,6 +229,7 @@ def _spec(values):
     return {"name": "dying", "notebooks": ["01_derivation"], "parameters": {}, "grid": {"grid_n": values}}
 
 
+@pytest.mark.slow
 def test_a_batch_whose_workers_all_die_ends_with_the_runs_pending(tmp_path, monkeypatch, capsys):
     """Every worker gone: the batch does not wait forever; it says so, records the runs not
     finished as pending with the reason and writes the index."""

@@ -402,8 +402,9 @@ def test_03_starts_from_a_saved_design(processed, tmp_path):
     doc["provenance"]["git_commit"] = first[0] if first else "unknown"
     path.write_text(json.dumps(doc))
     out02, _ = processed
+    # the design's source is what this test is about, not its runs: 1 s experiments, not 4.5 s
     m = _run(NOTEBOOKS[2], tmp_path, identified_path=str(out02 / "processed" / "friction_identified.json"),
-             processed_dir=str(tmp_path / "processed"), design_file=str(path))
+             processed_dir=str(tmp_path / "processed"), design_file=str(path), duration=1.0)
     assert m["readout"] == widgets.design_readout(saved)
     # the inputs read from files say where they came from; the old design shows its notice
     ident, design = m["inputs"]["identified_path"], m["inputs"]["design_file"]
@@ -500,6 +501,7 @@ def test_run_all_says_each_notebook_as_it_ends(tmp_path, monkeypatch, capfd):
     assert sum(" done: " in ln for ln in ends) == 3
 
 
+@pytest.mark.slow
 def test_a_run_says_its_sections_and_a_long_cell_while_it_runs(tmp_path, monkeypatch, capfd):
     """Progress lines from the first second: the start, each markdown heading as the run
     reaches it, a heartbeat naming a cell that runs long, the end with its time."""
@@ -557,6 +559,7 @@ def test_a_kernel_that_did_not_start_is_started_again_even_for_the_leg(tmp_path,
     assert len(calls) == 1
 
 
+@pytest.mark.slow
 def test_a_cell_past_the_timeout_names_the_cell_and_is_tried_once_more(tmp_path):
     """A cell that runs longer than execute's timeout stops the run with nbclient's
     CellTimeoutError, which shows the cell; on the twin the run is tried once more."""

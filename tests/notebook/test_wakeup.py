@@ -7,6 +7,7 @@ import asyncio
 import time
 from importlib import metadata
 
+import pytest
 import zmq
 import zmq.asyncio
 from jupyter_client.channels import AsyncZMQSocketChannel
@@ -49,6 +50,7 @@ async def _reply_wait(rearm: bool) -> float:
         ctx.term()
 
 
+@pytest.mark.slow
 def test_a_send_on_the_shell_swallows_the_wakeup_of_a_reply_unless_rearmed():
     assert asyncio.run(_reply_wait(rearm=False)) > 2.0   # the bug: woken only by the poll's timeout
     assert asyncio.run(_reply_wait(rearm=True)) < 1.0

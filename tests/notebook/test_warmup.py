@@ -74,6 +74,7 @@ def test_a_failing_group_is_reported_and_leaves_no_stamp(fake_package, monkeypat
     assert not warmup.stamp_path().exists()
 
 
+@pytest.mark.slow
 def test_a_compile_prints_a_line_per_group_and_writes_the_stamp(fake_package, monkeypatch):
     """The real groups with the repository's numba cache (warm in a test run: they load), the
     stamp under the fake cache directory: one line when they start, one as each is ready."""
