@@ -56,6 +56,8 @@ def _device():
     configure(dev)
     calibrate(dev)
     step_response(dev, 50.0, 0.046, 0.001, duration=0.05)
+    # the polled step (a live view, the leg): its host-side abort rule is a kernel of its own
+    step_response(dev, 50.0, 0.046, 0.001, duration=0.01, path="polled")
     # a batch of legs whose boards check their bus voltage: the same reference path, over
     # the cores (the batch group compiles the vectorized path only)
     from ..twin.host import Twin  # load time: as above
@@ -79,13 +81,13 @@ def _fits():
     from .. import model as M  # load time: as above
     from ..identify import fastfit  # load time: as above
     from ..identify.friction import FrictionFit  # load time: as above
-    from ..identify.step import second_order  # load time: as above
+    from ..identify.step import second_order, standard_errors  # load time: as above
     from ..model.terms import PARALLEL_POINTS  # load time: as above
     from ..params import load_leg  # load time: as above
 
     t = np.arange(750) * 0.002
     y = fastfit.model(t, 0.24, 31.4, 0.05, 0.0, 0.01)
-    second_order(t, y)
+    standard_errors(second_order(t, y), t, y)   # a fit and its intervals (the Jacobian's kernel)
     fastfit.fit_packed([t] * fastfit.PARALLEL_FROM, [y] * fastfit.PARALLEL_FROM)
     fastfit.shape_numbers([t], [y])
     fastfit.refit_from([t], [y], [[0.24, 31.4, 0.05, 0.0, 0.01]])   # a fit's refits on parts of its record
