@@ -20,15 +20,48 @@ WARM_ENV = "LEGLIB_TEST_WARM_KERNELS"      # the file the controller writes when
 WARM_TIMEOUT_S = 900
 
 
+WORKER_CORE = None   # the core this pytest-xdist worker keeps to, when it keeps to one
+
+
+def worker_core(workerid: str, workercount: int, cores: list[int]) -> int | None:
+    """The core pytest-xdist's worker ``workerid`` (``"gw0"``, ...) keeps to when there is one
+    worker per core (``-n auto``); None otherwise (fewer or more workers than cores: the
+    system spreads them)."""
+    if workercount != len(cores):
+        return None
+    return cores[int(workerid.removeprefix("gw")) % len(cores)]
+
+
+def _keep_worker_to_its_core(config) -> None:
+    """With one worker per core, each worker and every process it starts (notebook kernels,
+    JupyterLab, a wheel's environment) stay on a core of their own. The twin is driven
+    through the ``odrive`` client, which runs every property access on its event loop's
+    thread (leglib.device.virtual.wire): two thread wake-ups per access. Across two cores of
+    a virtual machine a wake-up costs far more than on one core (a bare asyncio round trip
+    to another thread: 80 us of CPU across cores, 43 us on one; a twin's property read 170
+    against 84 us), and the suite makes about 800,000 such accesses. Kept to a core, the
+    suite used 506 instead of about 590 CPU seconds (benchmarks.suite, make bench)."""
+    global WORKER_CORE
+    if not hasattr(os, "sched_setaffinity"):
+        return
+    cores = sorted(os.sched_getaffinity(0))
+    WORKER_CORE = worker_core(config.workerinput["workerid"], int(config.workerinput["workercount"]), cores)
+    if WORKER_CORE is not None:
+        os.sched_setaffinity(0, {WORKER_CORE})   # this thread, and every thread and process it starts
+
+
 def pytest_configure(config):
     """Under pytest-xdist, the controller compiles the kernels (leglib.notebook.warmup, one
     process per group) while the workers start and collect, unless they are current (``make
     venv`` compiled them and no kernel source changed since); each worker waits for them
     before its first test (:func:`pytest_runtest_setup`). Without this, on a fresh clone every worker
     and every notebook kernel compiles the same kernels at the same time (a minute each):
-    numba writes its cache only when a compile ends."""
-    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None) \
-            or config.option.collectonly:
+    numba writes its cache only when a compile ends. Each worker keeps to a core of its own
+    (:func:`_keep_worker_to_its_core`)."""
+    if hasattr(config, "workerinput"):
+        _keep_worker_to_its_core(config)
+        return
+    if not getattr(config.option, "numprocesses", None) or config.option.collectonly:
         return
     import io
 
