@@ -39,8 +39,9 @@ def _keep_worker_to_its_core(config) -> None:
     thread (leglib.device.virtual.wire): two thread wake-ups per access. Across two cores of
     a virtual machine a wake-up costs far more than on one core (a bare asyncio round trip
     to another thread: 80 us of CPU across cores, 43 us on one; a twin's property read 170
-    against 84 us), and the suite makes about 800,000 such accesses. Kept to a core, the
-    suite used 506 instead of about 590 CPU seconds (benchmarks.suite, make bench)."""
+    against 84 us), and the suite makes about 800,000 such accesses. On a fresh clone
+    (benchmarks.suite) the suite used 604 CPU seconds with its workers kept to their cores,
+    against 661 to 716 in three runs without."""
     global WORKER_CORE
     if not hasattr(os, "sched_setaffinity"):
         return
