@@ -23,30 +23,19 @@ WARM_TIMEOUT_S = 900
 WORKER_CORE = None   # the core this pytest-xdist worker keeps to, when it keeps to one
 
 
-def worker_core(workerid: str, workercount: int, cores: list[int]) -> int | None:
-    """The core pytest-xdist's worker ``workerid`` (``"gw0"``, ...) keeps to when there is one
-    worker per core (``-n auto``); None otherwise (fewer or more workers than cores: the
-    system spreads them)."""
-    if workercount != len(cores):
-        return None
-    return cores[int(workerid.removeprefix("gw")) % len(cores)]
-
-
 def _keep_worker_to_its_core(config) -> None:
-    """With one worker per core, each worker and every process it starts (notebook kernels,
-    JupyterLab, a wheel's environment) stay on a core of their own. The twin is driven
-    through the ``odrive`` client, which runs every property access on its event loop's
-    thread (leglib.device.virtual.wire): two thread wake-ups per access. Across two cores of
-    a virtual machine a wake-up costs far more than on one core (a bare asyncio round trip
-    to another thread: 80 us of CPU across cores, 43 us on one; a twin's property read 170
-    against 84 us), and the suite makes about 800,000 such accesses. On a fresh clone
-    (benchmarks.suite) the suite used 604 CPU seconds with its workers kept to their cores,
-    against 661 to 716 in three runs without."""
+    """With one worker per core (``-n auto``), each worker and every process it starts
+    (notebook kernels, JupyterLab, a wheel's environment) keep to a core of their own, as
+    ``make run``'s notebooks do (:func:`leglib.notebook.run.core_of`: the ``odrive`` client's
+    thread wake-up for every property access of the twin costs about twice the CPU across
+    cores). The suite makes about 800,000 such accesses; on a fresh clone
+    (benchmarks.suite) it used 604 CPU seconds with its workers kept to their cores, against
+    661 to 716 in three runs without."""
     global WORKER_CORE
-    if not hasattr(os, "sched_setaffinity"):
-        return
-    cores = sorted(os.sched_getaffinity(0))
-    WORKER_CORE = worker_core(config.workerinput["workerid"], int(config.workerinput["workercount"]), cores)
+    from leglib.notebook.run import core_of, usable_cores
+
+    index, count = int(config.workerinput["workerid"].removeprefix("gw")), int(config.workerinput["workercount"])
+    WORKER_CORE = core_of(index, count, usable_cores()) if hasattr(os, "sched_setaffinity") else None
     if WORKER_CORE is not None:
         os.sched_setaffinity(0, {WORKER_CORE})   # this thread, and every thread and process it starts
 

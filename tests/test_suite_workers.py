@@ -1,5 +1,6 @@
-"""The suite's workers: with one pytest-xdist worker per core, each keeps to a core of its own
-(tests/conftest.py, ``_keep_worker_to_its_core``), and so does every process it starts."""
+"""One process per core, each kept to its own (leglib.notebook.run.core_of): the suite's
+pytest-xdist workers with every process they start (tests/conftest.py), and ``make run``'s
+notebooks with their kernels."""
 
 import os
 import subprocess
@@ -7,18 +8,18 @@ import sys
 
 import conftest
 import pytest
-from conftest import worker_core
+
+from leglib.notebook.run import core_of
 
 
-def test_one_worker_per_core_gives_each_its_own_core():
-    cores = [0, 1]
-    assert [worker_core(f"gw{k}", 2, cores) for k in range(2)] == [0, 1]
-    assert [worker_core(f"gw{k}", 3, [2, 5, 7]) for k in range(3)] == [2, 5, 7]
+def test_one_process_per_core_gives_each_its_own_core():
+    assert [core_of(k, 2, [0, 1]) for k in range(2)] == [0, 1]
+    assert [core_of(k, 3, [2, 5, 7]) for k in range(3)] == [2, 5, 7]
 
 
-def test_more_or_fewer_workers_than_cores_are_left_to_the_system():
-    assert worker_core("gw0", 3, [0, 1]) is None
-    assert worker_core("gw0", 1, [0, 1]) is None
+def test_more_or_fewer_processes_than_cores_are_left_to_the_system():
+    assert core_of(0, 3, [0, 1]) is None
+    assert core_of(0, 1, [0, 1]) is None
 
 
 def test_this_worker_and_the_processes_it_starts_keep_to_its_core():

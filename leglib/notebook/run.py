@@ -254,15 +254,46 @@ def _data_written(before: dict) -> dict:
     return dict(sorted(counts.items()))
 
 
+def core_of(index: int, count: int, cores: list[int]) -> int | None:
+    """The core the ``index``-th of ``count`` processes keeps to when there is one process
+    per usable core (``cores``, as ``os.sched_getaffinity``); None when there are more or
+    fewer (the system spreads them: a process of several threads, such as a sweep on the
+    twin's vectorized kernel, then keeps every core it may use).
+
+    Why keep to a core: the twin is driven through the ``odrive`` client, which hands every
+    property access to its event loop's thread, two thread wake-ups per access; across the
+    cores of a virtual machine a wake-up costs about twice the CPU it costs on one core (a
+    bare asyncio round trip to another thread: 80 against 43 us of CPU on a 2-core machine;
+    a twin's property read through the client: 170 against 84 us)."""
+    if count != len(cores):
+        return None
+    return cores[index % len(cores)]
+
+
+def usable_cores() -> list[int]:
+    """The cores this process may run on (all of them where the system cannot say)."""
+    if hasattr(os, "sched_getaffinity"):
+        return sorted(os.sched_getaffinity(0))
+    return list(range(os.cpu_count() or 1))
+
+
+def _execute_on(core: int | None, notebook: Path, out_dir, parameters: dict) -> Path:
+    """:func:`execute` in a pool's process, kept to ``core`` with its kernel (None: anywhere)."""
+    if core is not None:
+        os.sched_setaffinity(0, {core})   # this process, and the kernel it starts
+    return execute(notebook, out_dir, parameters, progress=True)
+
+
 def run_all(out_dir: str | Path = "reports", smoke: bool = False, workers: int | None = None) -> list[Path]:
     """Execute every numbered notebook against the virtual leg (``make run``).
 
     Notebooks run in ``workers`` processes at once (default: the cores present, at most
     2: each kernel also runs the twin's compiled kernel on its threads); a notebook
-    starts only when the ones it reads from (:data:`DEPENDS_ON`) are done. When one fails,
-    the others still run, except those that read from it; then the first failure is
-    raised, with notes naming its notebook and the ones skipped. Returns the executed
-    notebooks in number order.
+    starts only when the ones it reads from (:data:`DEPENDS_ON`) are done. With one
+    process per core, each notebook and its kernel keep to a free core (:func:`core_of`).
+    When one fails, the others still run, except those that read from it; then the first
+    failure is raised, with notes naming its notebook and the ones skipped. Returns the
+    executed notebooks in number order.
     """
 
 
@@ -291,6 +322,8 @@ def run_all(out_dir: str | Path = "reports", smoke: bool = False, workers: int |
     warmup.ensure()
     print(f"[run] {len(paths)} notebooks, {workers} at a time, into {out_dir}", file=sys.stderr, flush=True)
     data_before = _data_files()
+    cores = usable_cores()
+    free = [c for c in (core_of(k, workers, cores) for k in range(workers)) if c is not None]
     with ProcessPoolExecutor(max_workers=workers) as pool:
         running = {}
         while waiting or running:
@@ -303,7 +336,8 @@ def run_all(out_dir: str | Path = "reports", smoke: bool = False, workers: int |
                     tally(p, "skipped (it reads from a failed notebook)")
                 elif len(running) < workers and all(d in done for d in deps):
                     waiting.remove(p)
-                    running[pool.submit(execute, p, out_dir, {"smoke": smoke}, progress=True)] = p
+                    core = free.pop(0) if free else None
+                    running[pool.submit(_execute_on, core, p, out_dir, {"smoke": smoke})] = (p, core)
             if not running:
                 if waiting:   # nothing can start and nothing runs: DEPENDS_ON has a cycle
                     raise RuntimeError(f"notebooks {[p.name for p in waiting]} wait for each other "
@@ -311,7 +345,9 @@ def run_all(out_dir: str | Path = "reports", smoke: bool = False, workers: int |
                 continue
             finished, _ = wait(running, return_when=FIRST_COMPLETED)
             for f in finished:
-                p = running.pop(f)
+                p, core = running.pop(f)
+                if core is not None:
+                    free.append(core)
                 try:
                     done[_number(p)] = f.result()
                 except Exception as exc:  # noqa: BLE001 - noted and re-raised after the others

@@ -4,6 +4,7 @@ metrics that say it computed the right things."""
 import ast
 import json
 import math
+import os
 
 import nbformat
 import pytest
@@ -454,6 +455,48 @@ def test_run_all_runs_two_at_a_time_along_the_dependencies(tmp_path, monkeypatch
     assert overlap > 0.1                                    # two at a time
     with pytest.raises(ValueError, match="workers"):
         notebooks.run_all(tmp_path, workers=0)
+
+
+def _fake_execute_on_cores(notebook, out_dir, parameters, progress=False):
+    """Stands in for notebooks.execute: records when it ran and on which cores it may run."""
+    import os as _os
+    import time as _time
+    from pathlib import Path as _Path
+    t0 = _time.monotonic()
+    _time.sleep(0.3)
+    cores = " ".join(map(str, sorted(_os.sched_getaffinity(0))))
+    (_Path(out_dir) / f"{_Path(notebook).stem}.cores").write_text(f"{t0} {_time.monotonic()} {cores}")
+    return _Path(out_dir) / _Path(notebook).name
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getaffinity") or len(os.sched_getaffinity(0)) < 2,
+                    reason="one core, or no CPU affinity on this system")
+def test_run_all_keeps_each_notebook_to_a_free_core(tmp_path, monkeypatch):
+    """make run with a process per core: each notebook (and the kernel it starts) keeps to one
+    core, two running at once to two cores; with fewer processes than cores, to none."""
+    names = ["01_a.ipynb", "02_b.ipynb", "03_c.ipynb", "04_d.ipynb", "05_e.ipynb"]
+    monkeypatch.setattr(notebooks, "notebook_paths", lambda: [tmp_path / n for n in names])
+    monkeypatch.setattr(notebooks, "execute", _fake_execute_on_cores)
+    cores = notebooks.usable_cores()
+
+    def ran():
+        out = {}
+        for p in tmp_path.glob("*.cores"):
+            t0, t1, *on = p.read_text().split()
+            out[p.stem[:2]] = (float(t0), float(t1), {int(c) for c in on})
+        return out
+
+    notebooks.run_all(tmp_path, workers=len(cores))
+    runs = ran()
+    assert len(runs) == 5 and all(len(on) == 1 and on <= set(cores) for *_, on in runs.values())
+    for a in runs:
+        for b in runs:
+            if a < b and min(runs[a][1], runs[b][1]) > max(runs[a][0], runs[b][0]):   # at once
+                assert runs[a][2] != runs[b][2], (a, b)
+    for p in tmp_path.glob("*.cores"):
+        p.unlink()
+    notebooks.run_all(tmp_path, workers=len(cores) - 1)
+    assert all(on == set(cores) for *_, on in ran().values())
 
 
 def _fake_execute_02_fails(notebook, out_dir, parameters, progress=False):
