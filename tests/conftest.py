@@ -35,7 +35,7 @@ def _keep_worker_to_its_core(config) -> None:
     from leglib.notebook.run import core_of, usable_cores
 
     index, count = int(config.workerinput["workerid"].removeprefix("gw")), int(config.workerinput["workercount"])
-    WORKER_CORE = core_of(index, count, usable_cores()) if hasattr(os, "sched_setaffinity") else None
+    WORKER_CORE = core_of(index, count, usable_cores())
     if WORKER_CORE is not None:
         os.sched_setaffinity(0, {WORKER_CORE})   # this thread, and every thread and process it starts
 

@@ -20,6 +20,7 @@ def test_one_process_per_core_gives_each_its_own_core():
 def test_more_or_fewer_processes_than_cores_are_left_to_the_system():
     assert core_of(0, 3, [0, 1]) is None
     assert core_of(0, 1, [0, 1]) is None
+    assert core_of(0, 2, []) is None            # a system that cannot keep a process to a core
 
 
 def test_this_worker_and_the_processes_it_starts_keep_to_its_core():

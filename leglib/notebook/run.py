@@ -271,10 +271,11 @@ def core_of(index: int, count: int, cores: list[int]) -> int | None:
 
 
 def usable_cores() -> list[int]:
-    """The cores this process may run on (all of them where the system cannot say)."""
-    if hasattr(os, "sched_getaffinity"):
+    """The cores this process may run on and be kept to; none where the system cannot keep
+    a process to a core (no ``os.sched_setaffinity``: then :func:`core_of` names none)."""
+    if hasattr(os, "sched_getaffinity") and hasattr(os, "sched_setaffinity"):
         return sorted(os.sched_getaffinity(0))
-    return list(range(os.cpu_count() or 1))
+    return []
 
 
 def _execute_on(core: int | None, notebook: Path, out_dir, parameters: dict) -> Path:
