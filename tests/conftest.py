@@ -1,3 +1,4 @@
+import contextlib
 import fcntl
 import os
 import shutil
@@ -21,23 +22,67 @@ WARM_TIMEOUT_S = 900
 
 
 WORKER_CORE = None   # the core this pytest-xdist worker keeps to, when it keeps to one
+_CORES_BEFORE = None  # the cores it could run on before
+
+
+def worker_core(index: int, count: int, cores: list[int]) -> int | None:
+    """The core the ``index``-th of ``count`` pytest-xdist workers keeps to (None: any).
+
+    With one worker per usable core each keeps to its own (:func:`leglib.notebook.run.core_of`:
+    the ``odrive`` client's thread wake-up for every property access of the twin costs about
+    twice the CPU across cores, and the suite makes about 800,000 such accesses). With one
+    worker more (``-n auto``: :func:`pytest_xdist_auto_num_workers`), that last one keeps to
+    none: it runs on whichever core a kept worker leaves idle while its test waits (a
+    real-time run, a browser, a kernel's reply, a timeout under test). Any other count is
+    left to the system."""
+    from leglib.notebook.run import core_of
+
+    if cores and count == len(cores) + 1:
+        return None if index == len(cores) else core_of(index, len(cores), cores)
+    return core_of(index, count, cores)
+
+
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto`` (``make test``): one worker per usable core and one more
+    (:func:`worker_core`). On a fresh clone with 2 cores the kept workers alone left the
+    cores idle for 17 to 27 % of the suite's wall time, waiting in tests; the worker that
+    keeps to no core fills most of it. pytest-xdist's own count where the system cannot keep
+    a process to a core, or where ``PYTEST_XDIST_AUTO_NUM_WORKERS`` names one."""
+    from leglib.notebook.run import usable_cores
+
+    cores = usable_cores()
+    if not cores or os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS"):
+        return None
+    return len(cores) + 1
 
 
 def _keep_worker_to_its_core(config) -> None:
-    """With one worker per core (``-n auto``), each worker and every process it starts
-    (notebook kernels, JupyterLab, a wheel's environment) keep to a core of their own, as
-    ``make run``'s notebooks do (:func:`leglib.notebook.run.core_of`: the ``odrive`` client's
-    thread wake-up for every property access of the twin costs about twice the CPU across
-    cores). The suite makes about 800,000 such accesses; on a fresh clone
-    (benchmarks.suite) it used 604 CPU seconds with its workers kept to their cores, against
-    661 to 716 in three runs without."""
-    global WORKER_CORE
-    from leglib.notebook.run import core_of, usable_cores
+    """This worker, and every process it starts (notebook kernels, a wheel's environment),
+    keeps to the core :func:`worker_core` gives it, if any."""
+    global WORKER_CORE, _CORES_BEFORE
+    from leglib.notebook.run import usable_cores
 
     index, count = int(config.workerinput["workerid"].removeprefix("gw")), int(config.workerinput["workercount"])
-    WORKER_CORE = core_of(index, count, usable_cores())
+    WORKER_CORE = worker_core(index, count, usable_cores())
     if WORKER_CORE is not None:
+        _CORES_BEFORE = os.sched_getaffinity(0)
         os.sched_setaffinity(0, {WORKER_CORE})   # this thread, and every thread and process it starts
+
+
+@contextlib.contextmanager
+def on_any_core():
+    """Processes started inside keep to no core even when this worker keeps to one: a
+    JupyterLab with its kernels, a browser. Kept to the worker's core, a page redrawing a
+    live view competed on one core with the kernel's real-time step it shows (its sample
+    period ran 6 % long on a slow machine)."""
+    if _CORES_BEFORE is None:
+        yield
+        return
+    os.sched_setaffinity(0, _CORES_BEFORE)
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, {WORKER_CORE})
 
 
 def pytest_configure(config):
@@ -46,8 +91,8 @@ def pytest_configure(config):
     venv`` compiled them and no kernel source changed since); each worker waits for them
     before its first test (:func:`pytest_runtest_setup`). Without this, on a fresh clone every worker
     and every notebook kernel compiles the same kernels at the same time (a minute each):
-    numba writes its cache only when a compile ends. Each worker keeps to a core of its own
-    (:func:`_keep_worker_to_its_core`)."""
+    numba writes its cache only when a compile ends. A worker keeps to a core of its own, or
+    to none (:func:`worker_core`)."""
     if hasattr(config, "workerinput"):
         _keep_worker_to_its_core(config)
         return

@@ -21,6 +21,7 @@ import urllib.request
 import warnings
 from pathlib import Path
 
+import conftest
 import pytest
 
 from leglib import model as M
@@ -111,11 +112,12 @@ def lab(tmp_path_factory, processed):
     (settings / "notification.jupyterlab-settings").write_text(
         json.dumps({"fetchNews": "false", "checkForUpdates": False}))
     log = open(root / "jupyterlab.log", "w")
-    server = subprocess.Popen(
-        [sys.executable, "-m", "jupyterlab", "--no-browser", "--ip=127.0.0.1", f"--port={port}",
-         f"--IdentityProvider.token={token}", f"--ServerApp.root_dir={root}",
-         "--ServerApp.port_retries=0"] + (["--allow-root"] if os.geteuid() == 0 else []),
-        env=env, stdout=log, stderr=subprocess.STDOUT, cwd=root)
+    with conftest.on_any_core():   # the server and its kernels: not on this worker's core alone
+        server = subprocess.Popen(
+            [sys.executable, "-m", "jupyterlab", "--no-browser", "--ip=127.0.0.1", f"--port={port}",
+             f"--IdentityProvider.token={token}", f"--ServerApp.root_dir={root}",
+             "--ServerApp.port_retries=0"] + (["--allow-root"] if os.geteuid() == 0 else []),
+            env=env, stdout=log, stderr=subprocess.STDOUT, cwd=root)
     base = f"http://127.0.0.1:{port}"
     try:
         deadline = time.monotonic() + 90
@@ -146,12 +148,16 @@ def lab(tmp_path_factory, processed):
 @pytest.fixture(scope="module")
 def browser(lab):
     from playwright.sync_api import sync_playwright
-    with sync_playwright() as p:
+    with conftest.on_any_core():   # playwright's driver and the browser it starts: not on this worker's core alone
+        p = sync_playwright().start()
+    try:
         b = p.chromium.launch(executable_path=lab["chromium"], headless=True, args=CHROMIUM_FLAGS)
         try:
             yield b
         finally:
             b.close()
+    finally:
+        p.stop()
 
 
 def _screenshot(page, name: str, element=None) -> Path:
