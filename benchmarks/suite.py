@@ -8,7 +8,8 @@ directory, removed afterwards. The CPU time is the clone's pytest and everything
 for (workers, notebook kernels, browsers, the wheel's environment); on a machine other
 processes load, the wall time depends on them: the load average before and after is shown.
 ``make bench`` runs it once (``bench_suite``): one run takes the suite's time (minutes), so
-it is one run, not a median.
+it is one run, not a median; the machine's speed before and after (:func:`probe`) says how
+far it compares with another run.
 """
 
 from __future__ import annotations
@@ -28,12 +29,25 @@ from .fresh import env as fresh_env
 TARGET_S = 300.0
 
 
+def probe() -> float:
+    """CPU seconds of a fixed pure-Python loop (the least of three): the machine's speed at
+    the time. On a shared virtual machine it varied from 0.57 to 0.9 s within minutes, and a
+    suite's CPU time with it; a suite's figures are comparable only at a like probe."""
+    def once():
+        c0, s = time.process_time(), 0
+        for i in range(10_000_000):
+            s += i * i % 7
+        return time.process_time() - c0
+    return min(once() for _ in range(3))
+
+
 def run(argv: list[str]) -> dict:
     """One run of the suite on a fresh clone; its figures (also in results/suite.json)."""
     args = argv or ["-n", "auto", "--dist", "loadgroup"]
     with tempfile.TemporaryDirectory(prefix="leglib-suite-") as tmp:
         clone, head = fresh_clone(tmp)
         env = fresh_env(clone)   # its own (empty) numba cache beside its sources: the suite compiles first
+        probe0 = probe()
         load0 = os.getloadavg()
         c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.perf_counter()
@@ -42,13 +56,16 @@ def run(argv: list[str]) -> dict:
         wall = time.perf_counter() - t0
         c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
         load1 = os.getloadavg()
+        probe1 = probe()
     cpu = (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)
     summary = (proc.stdout.strip().splitlines() or [""])[-1]
     result = {"commit": head, "args": args, "wall_s": wall, "cpu_s": cpu, "returncode": proc.returncode,
-              "summary": summary, "load_before": load0, "load_after": load1, "target_s": TARGET_S}
+              "summary": summary, "load_before": load0, "load_after": load1, "probe_before_s": probe0, "probe_after_s": probe1,
+              "target_s": TARGET_S}
     ok = "ok  " if proc.returncode == 0 and wall <= TARGET_S else "MISS"
     print(f"[{ok}] suite on a fresh clone of {head}: {wall:.0f} s wall, {cpu:.0f} s CPU "
-          f"(target {TARGET_S:.0f} s); load average {load0[0]:.1f} before, {load1[0]:.1f} after; {summary}")
+          f"(target {TARGET_S:.0f} s); load average {load0[0]:.1f} before, {load1[0]:.1f} after; machine probe "
+          f"{probe0:.2f} s before, {probe1:.2f} s after (probe(): smaller is faster); {summary}")
     out = REPO / "benchmarks" / "results"
     out.mkdir(exist_ok=True)
     (out / "suite.json").write_text(json.dumps(result, indent=2))

@@ -25,45 +25,23 @@ WORKER_CORE = None   # the core this pytest-xdist worker keeps to, when it keeps
 _CORES_BEFORE = None  # the cores it could run on before
 
 
-def worker_core(index: int, count: int, cores: list[int]) -> int | None:
-    """The core the ``index``-th of ``count`` pytest-xdist workers keeps to (None: any).
-
-    With one worker per usable core each keeps to its own (:func:`leglib.notebook.run.core_of`:
-    the ``odrive`` client's thread wake-up for every property access of the twin costs about
-    twice the CPU across cores, and the suite makes about 800,000 such accesses). With one
-    worker more (``-n auto``: :func:`pytest_xdist_auto_num_workers`), that last one keeps to
-    none: it runs on whichever core a kept worker leaves idle while its test waits (a
-    real-time run, a browser, a kernel's reply, a timeout under test). Any other count is
-    left to the system."""
-    from leglib.notebook.run import core_of
-
-    if cores and count == len(cores) + 1:
-        return None if index == len(cores) else core_of(index, len(cores), cores)
-    return core_of(index, count, cores)
-
-
-def pytest_xdist_auto_num_workers(config):
-    """``-n auto`` (``make test``): one worker per usable core and one more
-    (:func:`worker_core`). On a fresh clone with 2 cores the kept workers alone left the
-    cores idle for 17 to 27 % of the suite's wall time, waiting in tests; the worker that
-    keeps to no core fills most of it. pytest-xdist's own count where the system cannot keep
-    a process to a core, or where ``PYTEST_XDIST_AUTO_NUM_WORKERS`` names one."""
-    from leglib.notebook.run import usable_cores
-
-    cores = usable_cores()
-    if not cores or os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS"):
-        return None
-    return len(cores) + 1
-
-
 def _keep_worker_to_its_core(config) -> None:
-    """This worker, and every process it starts (notebook kernels, a wheel's environment),
-    keeps to the core :func:`worker_core` gives it, if any."""
+    """With one worker per core (``-n auto``), each worker and every process it starts
+    (notebook kernels, a wheel's environment) keep to a core of their own, as ``make run``'s
+    notebooks do (:func:`leglib.notebook.run.core_of`: the ``odrive`` client's thread
+    wake-up for every property access of the twin costs about twice the CPU across cores).
+    The suite makes about 800,000 such accesses; on a fresh clone (benchmarks.suite) it used
+    604 CPU seconds with its workers kept to their cores, against 661 to 716 in three runs
+    without. Measured and not kept: one worker more, kept to no core, to run where a kept
+    worker's test waits. It cut the cores' idle time on a fresh clone (17 against about 90
+    core-seconds) but not the wall time: 351 to 374 s in three runs, against 325 to 405 s
+    in four runs without, at 20 to 90 CPU seconds more on a machine whose speed varied by a
+    third from run to run (benchmarks.suite.probe)."""
     global WORKER_CORE, _CORES_BEFORE
-    from leglib.notebook.run import usable_cores
+    from leglib.notebook.run import core_of, usable_cores
 
     index, count = int(config.workerinput["workerid"].removeprefix("gw")), int(config.workerinput["workercount"])
-    WORKER_CORE = worker_core(index, count, usable_cores())
+    WORKER_CORE = core_of(index, count, usable_cores())
     if WORKER_CORE is not None:
         _CORES_BEFORE = os.sched_getaffinity(0)
         os.sched_setaffinity(0, {WORKER_CORE})   # this thread, and every thread and process it starts
@@ -91,8 +69,8 @@ def pytest_configure(config):
     venv`` compiled them and no kernel source changed since); each worker waits for them
     before its first test (:func:`pytest_runtest_setup`). Without this, on a fresh clone every worker
     and every notebook kernel compiles the same kernels at the same time (a minute each):
-    numba writes its cache only when a compile ends. A worker keeps to a core of its own, or
-    to none (:func:`worker_core`)."""
+    numba writes its cache only when a compile ends. Each worker keeps to a core of its own
+    (:func:`_keep_worker_to_its_core`)."""
     if hasattr(config, "workerinput"):
         _keep_worker_to_its_core(config)
         return

@@ -1,6 +1,6 @@
 """One process per core, each kept to its own (leglib.notebook.run.core_of): the suite's
-pytest-xdist workers with every process they start (tests/conftest.py; with one worker
-more, kept to none), and ``make run``'s notebooks with their kernels."""
+pytest-xdist workers with every process they start (tests/conftest.py) but a JupyterLab
+and a browser, and ``make run``'s notebooks with their kernels."""
 
 import os
 import subprocess
@@ -23,30 +23,9 @@ def test_more_or_fewer_processes_than_cores_are_left_to_the_system():
     assert core_of(0, 2, []) is None            # a system that cannot keep a process to a core
 
 
-def test_one_worker_more_than_cores_keeps_to_none_and_the_others_to_their_own():
-    assert [conftest.worker_core(k, 3, [0, 1]) for k in range(3)] == [0, 1, None]
-    assert [conftest.worker_core(k, 5, [2, 3, 6, 7]) for k in range(5)] == [2, 3, 6, 7, None]
-    assert [conftest.worker_core(k, 2, [0, 1]) for k in range(2)] == [0, 1]     # -n 2: one per core
-    assert [conftest.worker_core(k, 4, [0, 1]) for k in range(4)] == [None] * 4
-    assert conftest.worker_core(0, 1, []) is None
-
-
-def test_n_auto_is_one_worker_per_core_and_one_more(monkeypatch):
-    from leglib.notebook import run
-
-    monkeypatch.delenv("PYTEST_XDIST_AUTO_NUM_WORKERS", raising=False)
-    monkeypatch.setattr(run, "usable_cores", lambda: [0, 1])
-    assert conftest.pytest_xdist_auto_num_workers(None) == 3
-    monkeypatch.setattr(run, "usable_cores", lambda: [])    # cannot keep to a core: pytest-xdist's count
-    assert conftest.pytest_xdist_auto_num_workers(None) is None
-    monkeypatch.setattr(run, "usable_cores", lambda: [0, 1])
-    monkeypatch.setenv("PYTEST_XDIST_AUTO_NUM_WORKERS", "5")   # named: pytest-xdist reads it
-    assert conftest.pytest_xdist_auto_num_workers(None) is None
-
-
 def test_this_worker_and_the_processes_it_starts_keep_to_its_core():
     if conftest.WORKER_CORE is None:
-        pytest.skip("this pytest-xdist worker keeps to no core")
+        pytest.skip("not one pytest-xdist worker per core: the workers are left to the system")
     assert os.sched_getaffinity(0) == {conftest.WORKER_CORE}
     child = subprocess.run([sys.executable, "-c", "import os; print(sorted(os.sched_getaffinity(0)))"],
                            capture_output=True, text=True, check=True).stdout.strip()
@@ -55,7 +34,7 @@ def test_this_worker_and_the_processes_it_starts_keep_to_its_core():
 
 def test_a_process_started_on_any_core_keeps_to_none():
     if conftest.WORKER_CORE is None:
-        pytest.skip("this pytest-xdist worker keeps to no core")
+        pytest.skip("not one pytest-xdist worker per core: the workers are left to the system")
     with conftest.on_any_core():
         child = subprocess.run([sys.executable, "-c", "import os; print(sorted(os.sched_getaffinity(0)))"],
                                capture_output=True, text=True, check=True).stdout.strip()
