@@ -5,4 +5,4 @@ re-runs (:mod:`~leglib.notebook.batch`) and the command line (:mod:`~leglib.note
 
 from . import deferred as _deferred
 
-_deferred.install()   # jsonschema's IRI checks load on their first use (about 1 s of every notebook run)
+_deferred.install()   # jsonschema's IRI checks load on their first use (a second or more of every process that runs notebooks)

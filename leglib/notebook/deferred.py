@@ -3,10 +3,11 @@
 Every process that runs a notebook imports papermill, so nbformat, so jsonschema, whose format
 checkers import ``rfc3987_syntax`` when it is installed (it is: jupyter-events asks for
 ``jsonschema[format-nongpl]``). That module builds its Earley parsers (lark) as it is
-imported: about 1.1 s of CPU of the 1.3 s that ``import nbformat`` takes on a 2-core machine,
-in every process that runs notebooks (``make run``'s, a batch's Dask workers, the test
-workers), for the formats "iri" and "iri-reference", which no notebook schema uses
-(python-jsonschema/jsonschema#1428).
+imported: 1.2 s of the 1.4 s that ``import nbformat`` takes on a 2-core machine, and more in
+a process that holds much already (the test suite's collection: 12 to 14 CPU seconds with
+it, 7 without), in every process that runs notebooks (``make run``'s, a batch's Dask
+workers, the test workers), for the formats "iri" and "iri-reference", which no notebook
+schema uses (python-jsonschema/jsonschema#1428).
 
 :func:`install` (run when :mod:`leglib.notebook` is imported) puts a finder first on
 ``sys.meta_path`` that answers ``import rfc3987_syntax`` with a stand-in whose
