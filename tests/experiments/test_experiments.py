@@ -350,7 +350,10 @@ def test_a_step_with_a_firmware_error_is_not_completed(dev, realtime):
 def test_a_host_stall_longer_than_the_watchdog_disarms_the_realtime_step(dev):
     """axis.cpp:171-182: the device runs on while the host stalls; a stall longer than the
     step's 0.5 s watchdog trips WATCHDOG_TIMER_EXPIRED, the axes drop to IDLE, and the
-    response is not completed, with a reason naming the flag."""
+    response is not completed, with a reason naming the flag. The step lasts 0.8 s past the
+    stall's end, so that the loop reads an axis's state (every fourth sample) before the
+    step's end even when the host resumes late: at 0.1 s past it, on a loaded machine, the
+    step once ended first and said only "firmware error during the step"."""
     dev.sim.set_realtime(True)
     stalled = []
 
@@ -358,7 +361,7 @@ def test_a_host_stall_longer_than_the_watchdog_disarms_the_realtime_step(dev):
         if sample["t"] > 0.2 and not stalled:
             stalled.append(sample["t"])
             time.sleep(0.7)
-    r = lg.step_response(dev, *STABLE, duration=1.0, settle=0.1, on_sample=stall_once)
+    r = lg.step_response(dev, *STABLE, duration=1.7, settle=0.1, on_sample=stall_once)
     dev.sim.set_realtime(False)
     assert stalled and not r.completed
     assert "WATCHDOG_TIMER_EXPIRED" in r.abort_reason and "dropped out of closed loop" in r.abort_reason
