@@ -36,7 +36,12 @@ def _keep_worker_to_its_core(config) -> None:
     worker's test waits. It cut the cores' idle time on a fresh clone (17 against about 90
     core-seconds) but not the wall time: 351 to 374 s in three runs, against 325 to 405 s
     in four runs without, at 20 to 90 CPU seconds more on a machine whose speed varied by a
-    third from run to run (benchmarks.suite.probe)."""
+    third from run to run (benchmarks.suite.probe). Nor when that worker ran only the tests
+    that mostly wait (real-time scripts, timeouts, child processes; a scheduler of its own):
+    idle 35 and 46 core-seconds against 93 and 89, but 355 against 382 s and 355 against
+    351 s in two interleaved pairs of fresh-clone runs, at 5 and 49 CPU seconds more; and in
+    each of those runs a timing test failed there (a 500 Hz loop's pace, the reason a
+    watchdog trip gave), its real-time loop competing with both kept workers."""
     global WORKER_CORE, _CORES_BEFORE
     from leglib.notebook.run import core_of, usable_cores
 
