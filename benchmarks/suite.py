@@ -31,7 +31,7 @@ TARGET_S = 300.0
 
 def probe() -> float:
     """CPU seconds of a fixed pure-Python loop (the least of three): the machine's speed at
-    the time. On a shared virtual machine it varied from 0.57 to 0.9 s within minutes, and a
+    the time. On a shared virtual machine it varied from 0.51 to 0.9 s within minutes, and a
     suite's CPU time with it; a suite's figures are comparable only at a like probe."""
     def once():
         c0, s = time.process_time(), 0
