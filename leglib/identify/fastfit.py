@@ -25,9 +25,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange, set_parallel_chunksize
+from numba import njit
 
 from .. import _numba_inline  # noqa: F401  (before any kernel compiles)
+from ..cores import over_cores
 
 # status codes of one response (their messages: _error)
 OK, SHORT, NONFINITE, NOT_INCREASING, FLAT, NOT_STEP, ZETA_BOUND, LOW_R2, NO_DECAY = range(9)
@@ -482,7 +483,7 @@ def _fit_one(t_in, y, out):
 
     # the thesis's log decrement (peak-to-valley amplitudes one period apart): first start
     dev = (sm - yf) / step
-    prom = max(0.005, 4.0 * np.std(np.diff(y)) / abs(step))
+    prom = max(0.005, 4.0 * np.std(y[1:] - y[:-1]) / abs(step))   # np.diff's numbers; its compile cost 3 s
     peaks = _peaks(dev, prom)
     valleys = _peaks(-dev, prom)
     n_peaks = peaks.size
@@ -602,10 +603,10 @@ def _refit_one(t_in, y, p0, out):
         out[a] = p[a]
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _refit_packed(t, y, bounds, p0s, out):
     """:func:`_refit_one` of every packed response from its row of ``p0s``."""
-    for k in prange(bounds.size - 1):
+    for k in range(bounds.size - 1):
         a, b = bounds[k], bounds[k + 1]
         _refit_one(t[a:b], y[a:b], p0s[k], out[k])
 
@@ -618,25 +619,32 @@ def refit_from(ts, ys, starts) -> np.ndarray:
     that ends on a bound of zeta or explains less than :data:`MIN_R2`)."""
     t, y, bounds = _pack(ts, ys)
     out = np.empty((bounds.size - 1, 5))
-    if bounds.size > 1:
-        _refit_packed(t, y, bounds, np.ascontiguousarray(starts, dtype=float).reshape(-1, 5), out)
+    p0s = np.ascontiguousarray(starts, dtype=float).reshape(-1, 5)
+    _over_responses(lambda k0, k1: _refit_packed(t, y, bounds[k0:k1 + 1], p0s[k0:k1], out[k0:k1]), bounds, 4)
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _fit_packed(t, y, bounds, out, status):
+    """:func:`_fit_one` of every packed response (rows of ``out`` and ``status``); called
+    on parts of a batch from threads (:func:`_over_responses`): each response is fitted
+    alone, the same numbers."""
     for k in range(bounds.size - 1):
         a, b = bounds[k], bounds[k + 1]
         status[k] = _fit_one(t[a:b], y[a:b], out[k])
 
 
-@njit(cache=True, parallel=True)
-def _fit_packed_parallel(t, y, bounds, out, status):
-    """:func:`_fit_packed` on the cores present (each response is fitted alone: the
-    same numbers)."""
-    for k in prange(bounds.size - 1):
-        a, b = bounds[k], bounds[k + 1]
-        status[k] = _fit_one(t[a:b], y[a:b], out[k])
+def _over_responses(call, bounds, chunk):
+    """``call(k0, k1)`` on parts of the packed responses ``k0..k1-1`` (``bounds[k0:k1 + 1]``
+    their bounds), on the cores from :data:`PARALLEL_FROM` responses on (below that one
+    thread fits them: the thread pool costs more than it gives), ``chunk`` at a time."""
+    k = bounds.size - 1
+    if k < 1:
+        return
+    if k < PARALLEL_FROM:
+        call(0, k)
+    else:
+        over_cores(call, k, chunk)
 
 
 @njit(cache=True)
@@ -657,7 +665,7 @@ def _shape_row(t, y, out):
     for i in range(n):
         peak = max(peak, sign * (y[i] - final))
     out[0], out[1], out[2] = start, final, peak
-    out[3] = np.median(np.diff(t))
+    out[3] = np.median(t[1:] - t[:-1])   # np.diff(t), as above
 
 
 @njit(cache=True)
@@ -719,15 +727,8 @@ def _fit(t, y, bounds):
     k = bounds.size - 1
     out = np.empty((k, N_OUT))
     status = np.empty(k, dtype=np.int64)
-    if k < PARALLEL_FROM:
-        _fit_packed(t, y, bounds, out, status)
-    else:
-        # responses handed out a few at a time: their fits differ in cost
-        chunk = set_parallel_chunksize(4)
-        try:
-            _fit_packed_parallel(t, y, bounds, out, status)
-        finally:
-            set_parallel_chunksize(chunk)
+    # responses handed out a few at a time: their fits differ in cost
+    _over_responses(lambda k0, k1: _fit_packed(t, y, bounds[k0:k1 + 1], out[k0:k1], status[k0:k1]), bounds, 4)
     return status, out
 
 

@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..cores import cores, over_cores
 from ..params import LegParams
 from .terms import (
     PARALLEL_POINTS,
     _batch_foot,
-    _batch_foot_parallel,
     _batch_lower_angles,
     _flat,
     param_vector,
@@ -46,7 +46,11 @@ def foot_position(leg: LegParams, q1, q2):
     """
     shape, (a, b) = _flat(q1, q2)
     out = np.empty((a.size, 2))
-    (_batch_foot_parallel if a.size >= PARALLEL_POINTS else _batch_foot)(a, b, param_vector(leg), out)
+    P = param_vector(leg)
+    if a.size < PARALLEL_POINTS:
+        _batch_foot(a, b, P, out)
+    else:   # a part per core: each point alone, the same numbers
+        over_cores(lambda i0, i1: _batch_foot(a[i0:i1], b[i0:i1], P, out[i0:i1]), a.size, -(-a.size // cores()))
     return out[:, 0].reshape(shape), out[:, 1].reshape(shape)
 
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .. import _numba_inline  # noqa: F401  (before any kernel compiles)
 from ..params import LegParams
@@ -220,19 +220,15 @@ def _batch_lower_angles(q1, q2, P, out):
         out[i, 0], out[i, 1] = _lower_angles(q1[i], q2[i], P)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _batch_foot(q1, q2, P, out):
+    """Foot positions of the points (rows of ``out``); called on parts of a batch from
+    threads (elementwise: the same numbers)."""
     for i in range(q1.size):
         r = _foot_cs(math.cos(q1[i]), math.sin(q1[i]), math.cos(q2[i]), math.sin(q2[i]), P)
         out[i, 0], out[i, 1] = r[0], r[1]
 
 
-@njit(cache=True, parallel=True)
-def _batch_foot_parallel(q1, q2, P, out):
-    """:func:`_batch_foot` on the cores present (elementwise: the same numbers)."""
-    for i in prange(q1.size):
-        r = _foot_cs(math.cos(q1[i]), math.sin(q1[i]), math.cos(q2[i]), math.sin(q2[i]), P)
-        out[i, 0], out[i, 1] = r[0], r[1]
 PARALLEL_POINTS = 50_000   # from about this many points a thread pool pays (a sweep: 300 000)
 
 

@@ -12,7 +12,7 @@ ends; ``python -m leglib run`` does it again first when a kernel's source change
 The groups are chosen so that no two processes compile the same heavy function:
 
 - ``device``: a device's calibration and a step (the twin's kernel on a batch of one), and
-  a batch of legs on the same reference path (its thread-parallel wrapper);
+  a batch of legs on the same reference path (the blocks' choice of path);
 - ``batch``: the twin's vectorized path for a batch of legs (a sweep's blocks);
 - ``fits``: the step fit (one and many responses), the friction fit's simulator, the
   model's terms, energy, kinematics and the torque-table simulator.
@@ -58,8 +58,8 @@ def _device():
     step_response(dev, 50.0, 0.046, 0.001, duration=0.05)
     # the polled step (a live view, the leg): its host-side abort rule is a kernel of its own
     step_response(dev, 50.0, 0.046, 0.001, duration=0.01, path="polled")
-    # a batch of legs whose boards check their bus voltage: the same reference path, over
-    # the cores (the batch group compiles the vectorized path only)
+    # a batch of legs whose boards check their bus voltage: the same reference path, in
+    # blocks (the batch group compiles the vectorized path only)
     from ..twin.host import Twin  # load time: as above
     from ..twin.layout import C_VBUS_CHECKS  # load time: as above
     twin = Twin()
@@ -82,7 +82,6 @@ def _fits():
     from ..identify import fastfit  # load time: as above
     from ..identify.friction import FrictionFit  # load time: as above
     from ..identify.step import second_order, standard_errors  # load time: as above
-    from ..model.terms import PARALLEL_POINTS  # load time: as above
     from ..params import load_leg  # load time: as above
 
     t = np.arange(750) * 0.002
@@ -97,8 +96,6 @@ def _fits():
     M.energy(leg, q1, q2, q1, q2)
     M.lower_link_angles(leg, q1, q2)
     M.foot_position(leg, q1, q2)
-    big = np.full(PARALLEL_POINTS, leg.q1)
-    M.foot_position(leg, big, big)
     M.simulate_torque_table(leg, [leg.q1, 0.0, leg.q2, 0.0], np.zeros((3, 2)), 0.002)
     FrictionFit(0.01, 0.01, 0.001, 1e-4, 0.0, 0.01, {}, 1.0, 0.0, 0.0, 3).simulate(t[:3], np.zeros(3))
 

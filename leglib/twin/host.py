@@ -12,10 +12,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import get_num_threads, set_parallel_chunksize
 
 from .. import _numba_inline  # noqa: F401  (before any kernel compiles)
 from ..abort import ABORT_NONE
+from ..cores import cores
 from ..model.drive import AxisMap
 from ..model.dynamics import mass_matrix
 from ..model.terms import param_vector
@@ -422,14 +422,9 @@ class Twin:
         # blocks of legs handed out one at a time (a dynamic schedule: a core busy with
         # something else takes fewer); whole vectors of legs, two when there are blocks
         # enough to share out evenly
-        big = B >= 16 * VECTOR_LEGS * get_num_threads()
-        block = 2 * VECTOR_LEGS if big else VECTOR_LEGS
-        chunk = set_parallel_chunksize(1)
-        try:
-            _run(n, self.dt, st.X, st.AS, st.AI, st.C, P, FR, MECH, self.DRV, st.RNG, st.ABORT, tt, tt_period,
-                 rec, int(record_every), int(record_offset), block)
-        finally:
-            set_parallel_chunksize(chunk)
+        block = 2 * VECTOR_LEGS if B >= 16 * VECTOR_LEGS * cores() else VECTOR_LEGS
+        _run(n, self.dt, st.X, st.AS, st.AI, st.C, P, FR, MECH, self.DRV, st.RNG, st.ABORT, tt, tt_period,
+             rec, int(record_every), int(record_offset), block)
 
     def step_batch(self, gains: np.ndarray, step_turns: float = 0.4, duration: float = 1.5,
                    sample_period: float = 0.002, vel_limit: float | None = None,

@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .. import _numba_inline  # noqa: F401  (before any kernel compiles)
 from ..abort import (
@@ -28,6 +28,7 @@ from ..abort import (
     ABORT_POSITION_ERROR,
     _oscillation_step,
 )
+from ..cores import over_cores
 from ..kernelmath import py_min
 from .effects import _encoder_error
 from .layout import (
@@ -250,19 +251,22 @@ def _run(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
     to axes in torque mode, row i = tick // tt_period (ignored when it has no rows);
     REC[b, k] = (t, counts0, counts1, Iq0, Iq1) every ``rec_every`` ticks from row
     ``rec_offset``. The legs go in blocks of ``block``, a thread's unit of work, over the
-    cores: a block that :func:`_vector_block` allows vectorized (:func:`_run_vector`), every
-    other one through :func:`_run_block`, the reference (:func:`_run_reference`). A block
-    changes only its own legs' rows, so the two sets of blocks may run one after the other.
+    cores (:func:`leglib.cores.over_cores`, a block to each thread that is free): a block
+    that :func:`_vector_block` allows goes vectorized, every other one through
+    :func:`_run_block`, the reference (:func:`_one_block`). A block changes only its own
+    legs' rows, so the blocks may run in any order and at once.
     Returns nothing; everything is updated in place.
     """
+    B = X.shape[0]
     block = min(block, LANES)
-    vec = _vector_blocks(X.shape[0], block, FR, C, AI)
-    if vec.any():
-        _run_vector(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, REC, rec_every, rec_offset, block,
-                    vec)
-    if not vec.all():
-        _run_reference(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC, rec_every,
-                       rec_offset, block, vec)
+    vec = _vector_blocks(B, block, FR, C, AI).tolist()
+
+    def blocks(k0, k1):
+        for k in range(k0, k1):
+            _one_block(k * block, min(B, (k + 1) * block), vec[k], n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV,
+                       RNG, ABORT, TT, tt_period, REC, rec_every, rec_offset)
+
+    over_cores(blocks, len(vec))
 
 
 def _run_serial(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC, rec_every,
@@ -276,12 +280,21 @@ def _run_serial(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_
     block = min(block, LANES)
     for b0 in range(0, B, block):
         b1 = min(B, b0 + block)
-        if B > 1 and _vector_block(b0, b1, FR, C, AI):
-            _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, REC, rec_every,
-                              rec_offset, _plain_block(b0, b1, P, FR, MECH))
-        else:
-            _run_block_reference(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
-                                 REC, rec_every, rec_offset)
+        _one_block(b0, b1, B > 1 and _vector_block(b0, b1, FR, C, AI), n_ticks, dt, X, AS, AI, C, P, FR, MECH,
+                   DRV, RNG, ABORT, TT, tt_period, REC, rec_every, rec_offset)
+
+
+def _one_block(b0, b1, vectorized, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC,
+               rec_every, rec_offset):
+    """Legs b0..b1-1 vectorized (:func:`leglib.twin.vector._run_block_vector`) or through
+    the reference (:func:`_run_block_reference`). Each compiled call releases the GIL
+    (``nogil``): the blocks of :func:`_run` run on the cores at once."""
+    if vectorized:
+        _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, REC, rec_every,
+                          rec_offset, _plain_block(b0, b1, P, FR, MECH))
+    else:
+        _run_block_reference(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period,
+                             REC, rec_every, rec_offset)
 
 
 @njit(cache=True)
@@ -293,29 +306,7 @@ def _vector_blocks(B, block, FR, C, AI):
     return out
 
 
-@njit(cache=True, parallel=True)
-def _run_vector(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, REC, rec_every, rec_offset, block, vec):
-    """The blocks of :func:`_run` marked in ``vec``, vectorized, over the cores."""
-    B = X.shape[0]
-    for blk in prange(vec.size):
-        if vec[blk]:
-            b0, b1 = blk * block, min(B, (blk + 1) * block)
-            _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, REC, rec_every,
-                              rec_offset, _plain_block(b0, b1, P, FR, MECH))
-
-
-@njit(cache=True, parallel=True)
-def _run_reference(n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC, rec_every,
-                   rec_offset, block, vec):
-    """The blocks of :func:`_run` not marked in ``vec``, through the reference, over the cores."""
-    B = X.shape[0]
-    for blk in prange(vec.size):
-        if not vec[blk]:
-            _run_block_reference(blk * block, min(B, (blk + 1) * block), n_ticks, dt, X, AS, AI, C, P, FR, MECH,
-                                 DRV, RNG, ABORT, TT, tt_period, REC, rec_every, rec_offset)
-
-
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _run_block_reference(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, TT, tt_period, REC,
                          rec_every, rec_offset):
     """Legs b0..b1-1 through :func:`_run_block`: all at once when they share a plain plant

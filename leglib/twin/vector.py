@@ -598,7 +598,7 @@ def _mechanics_legs(k, dt, b0, nb, FB, IB, X, AI, P, FR, MECH, DRV, ABORT, TM, I
         _sensed_rows(b, i, X, FR, FB)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _run_block_vector(b0, b1, n_ticks, dt, X, AS, AI, C, P, FR, MECH, DRV, RNG, ABORT, REC, rec_every,
                       rec_offset, plain):
     """Legs b0..b1-1 of :func:`_run` when :func:`_vector_block` allows: the state copied

@@ -1,0 +1,101 @@
+"""A batch's compiled work over the cores: a kernel called on parts of the batch from a
+pool of threads, a part at a time to whichever thread is free.
+
+The kernels are numba functions compiled with ``nogil=True``, called on parts of their
+arrays (slices, or a range of rows passed as two numbers): each part is the same call the
+serial path makes, so the numbers do not depend on how many threads ran or in which order.
+
+numba's own ``parallel=True`` loops (``prange``) did the same in earlier versions. They
+were dropped for this pool because their compile cost more than anything the loop did: a
+``prange`` is lowered into a function of its own (a gufunc) for every kernel that has one,
+4 to 6 s of CPU each with an empty cache, about 18 s over the five kernels (the twin's two
+paths, the step fit and its refit, the foot positions) of a first compile; calling the
+serial kernel from threads compiles nothing more. numba's pool also took as many threads
+as the machine has cores even in a process kept to one core (a notebook of ``make run``),
+and its default threading layer may not be used from two threads at once; this pool takes
+a thread per core the process may run on and serves any thread.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import wait as _wait
+
+_pool: ThreadPoolExecutor | None = None
+_pool_lock = threading.Lock()
+
+
+def cores() -> int:
+    """How many cores this process may run on (its affinity; all of the machine's where the
+    system does not say)."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return max(1, os.cpu_count() or 1)
+
+
+def _executor() -> ThreadPoolExecutor:
+    global _pool
+    with _pool_lock:
+        if _pool is None:
+            # as many threads as the machine has cores at most; a call uses only as many as
+            # the process may run on at the time (cores())
+            _pool = ThreadPoolExecutor(max_workers=max(1, os.cpu_count() or 1), thread_name_prefix="leglib-cores")
+        return _pool
+
+
+def _forget_pool() -> None:
+    """In a forked child the parent's threads do not exist: a new pool on first use."""
+    global _pool, _pool_lock
+    _pool, _pool_lock = None, threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool)
+
+
+def over_cores(call, n: int, chunk: int = 1) -> None:
+    """``call(i0, i1)`` for every part ``[i0, i1)`` of ``range(n)`` (``chunk`` long, the
+    last one shorter), on a thread per core, each thread taking the next part when it is
+    done with one (a core busy with something else takes fewer). Returns when every part
+    has run.
+
+    Every part runs exactly once, whatever happens meanwhile: a Ctrl-C (KeyboardInterrupt)
+    in the calling thread is raised after the last part ended, as it is after one compiled
+    call, so a batch is never left advanced in some rows and not in others. An exception
+    in a part is raised after the others ended (the first one, in the order of the parts'
+    threads). A batch of one part is called in the calling thread."""
+    if not isinstance(chunk, int) or chunk < 1:
+        raise ValueError(f"chunk must be a positive integer, got {chunk!r}")
+    parts = [(i, min(n, i + chunk)) for i in range(0, max(n, 0), chunk)]
+    if len(parts) <= 1:
+        for i0, i1 in parts:
+            call(i0, i1)
+        return
+    taken = iter(parts)
+    take = threading.Lock()
+
+    def work():
+        while True:
+            with take:
+                part = next(taken, None)
+            if part is None:
+                return
+            call(*part)
+
+    futures = [_executor().submit(work) for _ in range(min(cores(), len(parts)))]
+    interrupt = None
+    while True:
+        try:
+            _wait(futures)
+            break
+        except KeyboardInterrupt as exc:   # raised once every part has run
+            interrupt = exc
+    if interrupt is not None:
+        raise interrupt
+    for f in futures:
+        f.result()
+
+
+__all__ = ["cores", "over_cores"]

@@ -1,0 +1,144 @@
+"""A batch's compiled work over the cores (leglib.cores): every part once, at once, whatever
+happens meanwhile; and the kernels that use it give the numbers of one thread.
+
+The test workers keep to one core each (tests/conftest.py), where the pool takes one
+thread: the tests that are about several threads ask for them (``cores`` replaced)."""
+
+import multiprocessing
+import os
+import signal
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from leglib import cores as K
+
+
+def test_every_part_runs_once_and_the_parts_cover_the_batch():
+    for n, chunk in [(0, 1), (1, 1), (7, 1), (7, 3), (64, 4), (5, 9)]:
+        seen = []
+        lock = threading.Lock()
+
+        def call(i0, i1):
+            with lock:
+                seen.append((i0, i1))
+        K.over_cores(call, n, chunk)
+        covered = sorted(i for i0, i1 in seen for i in range(i0, i1))
+        assert covered == list(range(n)), (n, chunk, seen)
+        assert all(0 < i1 - i0 <= chunk for i0, i1 in seen)
+
+
+def test_parts_run_at_once_on_two_threads(monkeypatch):
+    """Two parts that each wait for the other: they end only if two threads run them."""
+    monkeypatch.setattr(K, "cores", lambda: 2)
+    both = threading.Barrier(2, timeout=10)
+    names = set()
+
+    def call(i0, i1):
+        names.add(threading.current_thread().name)
+        both.wait()
+    K.over_cores(call, 2)
+    assert len(names) == 2 and all(n.startswith("leglib-cores") for n in names)
+
+
+def test_the_pool_takes_a_thread_per_core_the_process_may_use():
+    assert K.cores() == len(os.sched_getaffinity(0))
+
+
+def test_an_exception_in_a_part_is_raised_after_the_other_parts_ran(monkeypatch):
+    monkeypatch.setattr(K, "cores", lambda: 2)
+    done = []
+
+    def call(i0, i1):
+        if i0 == 3:
+            raise ValueError("part 3")
+        time.sleep(0.01)
+        done.append(i0)
+    with pytest.raises(ValueError, match="part 3"):
+        K.over_cores(call, 8)
+    assert sorted(done) == [0, 1, 2, 4, 5, 6, 7]
+
+
+def test_a_ctrl_c_is_raised_after_every_part_ran(monkeypatch):
+    """A Ctrl-C while the parts run leaves no row of the batch behind: it is raised when
+    the last part ended, as after one compiled call."""
+    monkeypatch.setattr(K, "cores", lambda: 2)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    done = []
+
+    def call(i0, i1):
+        if i0 == 1:
+            signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
+        time.sleep(0.02)
+        done.append(i0)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            K.over_cores(call, 10)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert sorted(done) == list(range(10))
+
+
+def test_a_bad_chunk_is_named():
+    with pytest.raises(ValueError, match="chunk must be a positive integer, got 0"):
+        K.over_cores(lambda i0, i1: None, 4, 0)
+
+
+def _in_a_forked_child(queue):
+    out = []
+    K.over_cores(lambda i0, i1: out.append(i0), 6)
+    queue.put(sorted(out))
+
+
+def test_a_forked_child_gets_a_pool_of_its_own(monkeypatch):
+    """The parent's pool threads do not exist in a child forked from it (``make run``'s
+    notebooks, a Dask worker): the child's first batch must not wait on them forever."""
+    monkeypatch.setattr(K, "cores", lambda: 2)
+    K.over_cores(lambda i0, i1: time.sleep(0.01), 4)   # the parent's pool exists
+    ctx = multiprocessing.get_context("fork")
+    queue = ctx.Queue()
+    child = ctx.Process(target=_in_a_forked_child, args=(queue,))
+    child.start()
+    child.join(timeout=30)
+    if child.is_alive():
+        child.kill()
+        pytest.fail("a forked child's batch hung on its parent's pool")
+    assert child.exitcode == 0 and queue.get(timeout=5) == [0, 1, 2, 3, 4, 5]
+
+
+def test_a_twin_batch_on_two_threads_gives_the_numbers_of_one(monkeypatch):
+    """The blocks of a batch of legs on two threads at once, against one thread: the same
+    numbers, bit for bit (every block changes only its own legs' rows)."""
+    from leglib.twin.host import Twin
+    from leglib.twin.layout import C_VBUS_CHECKS
+
+    twin = Twin(seed=3)
+    gains = np.column_stack([np.linspace(8, 60, 40), np.linspace(0.03, 0.2, 40), np.linspace(0, 0.5, 40)])
+
+    def run(n):
+        monkeypatch.setattr(K, "cores", lambda: n)
+        start = twin._initial_state(40)
+        start.C[::3, 0, C_VBUS_CHECKS] = 1.0    # every third leg through the reference path
+        return twin.step_batch(gains, duration=0.2, start=start)
+    one, two = run(1), run(2)
+    assert one.keys() == two.keys()
+    for key in one:
+        if isinstance(one[key], np.ndarray):
+            np.testing.assert_array_equal(one[key], two[key], err_msg=key)
+
+
+def test_fits_on_two_threads_give_the_numbers_of_one(monkeypatch):
+    from leglib.identify import fastfit as F
+
+    t = np.arange(500) * 0.002
+    ys = [F.model(t, 0.1 + 0.02 * k, 25.0 + k, 0.05, 0.0, 0.01) + 1e-4 * np.sin(7 * k * t) for k in range(F.PARALLEL_FROM + 5)]
+    monkeypatch.setattr(K, "cores", lambda: 1)
+    one = F.fit_packed([t] * len(ys), ys), F.refit_from([t] * len(ys), ys, [[0.3, 30.0, 0.05, 0.0, 0.01]] * len(ys))
+    monkeypatch.setattr(K, "cores", lambda: 2)
+    two = F.fit_packed([t] * len(ys), ys), F.refit_from([t] * len(ys), ys, [[0.3, 30.0, 0.05, 0.0, 0.01]] * len(ys))
+    np.testing.assert_array_equal(one[0][0], two[0][0])
+    np.testing.assert_array_equal(one[0][1], two[0][1])
+    np.testing.assert_array_equal(one[1], two[1])
+    assert np.isfinite(one[1]).all(axis=1).sum() > len(ys) // 2   # the refits mostly succeed: compared on numbers
