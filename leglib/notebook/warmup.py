@@ -208,7 +208,7 @@ def compile_kernels(groups=GROUPS, stream=None) -> dict:
     fingerprint = _fingerprint()   # of the sources as they are when the compiles start
     if not up_to_date():
         purge_cache()
-    print(f"[compile] numba kernels, {len(groups)} groups at once (about 40 s on 2 cores with an "
+    print(f"[compile] numba kernels, {len(groups)} groups at once (about 36 s on 2 cores with an "
           f"empty cache, a few seconds with a current one): {', '.join(groups)}", file=stream, flush=True)
     t0 = time.monotonic()
     # each group's output into a file (a pipe read only at the end could fill and stall it)
