@@ -6,14 +6,16 @@ arrays (slices, or a range of rows passed as two numbers): each part is the same
 serial path makes, so the numbers do not depend on how many threads ran or in which order.
 
 numba's own ``parallel=True`` loops (``prange``) did the same in earlier versions. They
-were dropped for this pool because their compile cost more than anything the loop did: a
-``prange`` is lowered into a function of its own (a gufunc) for every kernel that has one,
-4 to 6 s of CPU each with an empty cache, about 18 s over the five kernels (the twin's two
-paths, the step fit and its refit, the foot positions) of a first compile; calling the
-serial kernel from threads compiles nothing more. numba's pool also took as many threads
-as the machine has cores even in a process kept to one core (a notebook of ``make run``),
-and its default threading layer may not be used from two threads at once; this pool takes
-a thread per core the process may run on and serves any thread.
+were dropped for this pool for what they cost. A ``prange`` is lowered into a function of
+its own (a gufunc) for every kernel that has one (numba's pipeline times with an empty
+cache: the twin's two paths 4.0 and 4.8 s of CPU, the step fit 6.2 s, its refit 2.8 s):
+over the five kernels about 18 of a first compile's 90 CPU seconds. Calling the serial
+kernel from threads compiles nothing more. numba's threads were also as many as the
+machine has cores even in a process kept to one core (a notebook of ``make run``), and its
+threading layer here was GNU OpenMP, which is not fork-safe and whose threads spin on
+after each call: in a process kept to no core, 200 calls of a small ``prange`` kernel 16
+ms apart took 3.4 s and 5.0 s of CPU, the serial kernel 3.3 s and 3.3 s. This pool takes a
+thread per core the process may run on; its idle threads sleep.
 """
 
 from __future__ import annotations

@@ -43,8 +43,26 @@ def test_parts_run_at_once_on_two_threads(monkeypatch):
     assert len(names) == 2 and all(n.startswith("leglib-cores") for n in names)
 
 
-def test_the_pool_takes_a_thread_per_core_the_process_may_use():
-    assert K.cores() == len(os.sched_getaffinity(0))
+def _kept_to_one_core(queue):
+    os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+    names = set()
+
+    def call(i0, i1):
+        names.add(threading.current_thread().name)
+        time.sleep(0.01)   # long enough that a second thread, if there were one, would take a part
+    K.over_cores(call, 8)
+    queue.put((K.cores(), len(names)))
+
+
+def test_a_process_kept_to_one_core_runs_its_parts_on_one_thread():
+    """As many threads as cores the process may run on (its affinity, not the machine's
+    cores): a notebook kept to a core by ``make run`` runs its batches on one thread."""
+    ctx = multiprocessing.get_context("fork")
+    queue = ctx.Queue()
+    child = ctx.Process(target=_kept_to_one_core, args=(queue,))
+    child.start()
+    child.join(timeout=30)
+    assert child.exitcode == 0 and queue.get(timeout=5) == (1, 1)
 
 
 def test_an_exception_in_a_part_is_raised_after_the_other_parts_ran(monkeypatch):
