@@ -57,7 +57,7 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forget_pool)
 
 
-def over_cores(call, n: int, chunk: int = 1) -> None:
+def over_cores(call, n: int, chunk: int = 1, serial_below: int = 2) -> None:
     """``call(i0, i1)`` for every part ``[i0, i1)`` of ``range(n)`` (``chunk`` long, the
     last one shorter), on a thread per core, each thread taking the next part when it is
     done with one (a core busy with something else takes fewer). Returns when every part
@@ -67,13 +67,15 @@ def over_cores(call, n: int, chunk: int = 1) -> None:
     in the calling thread is raised after the last part ended, as it is after one compiled
     call, so a batch is never left advanced in some rows and not in others. An exception
     in a part is raised after the others ended (the first one, in the order of the parts'
-    threads). A batch of one part is called in the calling thread."""
+    threads). A batch of one part, or of fewer than ``serial_below`` items (where the
+    pool's hand-offs cost more than they give), is one ``call(0, n)`` in the calling thread."""
     if not isinstance(chunk, int) or chunk < 1:
         raise ValueError(f"chunk must be a positive integer, got {chunk!r}")
-    parts = [(i, min(n, i + chunk)) for i in range(0, max(n, 0), chunk)]
-    if len(parts) <= 1:
-        for i0, i1 in parts:
-            call(i0, i1)
+    if n <= 0:
+        return
+    parts = [(i, min(n, i + chunk)) for i in range(0, n, chunk)]
+    if len(parts) == 1 or n < serial_below:
+        call(0, n)
         return
     taken = iter(parts)
     take = threading.Lock()

@@ -99,6 +99,17 @@ def test_a_ctrl_c_is_raised_after_every_part_ran(monkeypatch):
     assert sorted(done) == list(range(10))
 
 
+def test_a_small_batch_is_one_call_in_the_calling_thread(monkeypatch):
+    """Below ``serial_below`` items (a fit of fewer than PARALLEL_FROM responses, fewer than
+    PARALLEL_POINTS foot positions) the pool's hand-offs cost more than they give."""
+    monkeypatch.setattr(K, "cores", lambda: 2)
+    seen = []
+    K.over_cores(lambda i0, i1: seen.append((i0, i1, threading.current_thread().name)), 10, 2, serial_below=16)
+    assert seen == [(0, 10, threading.current_thread().name)]
+    K.over_cores(lambda i0, i1: seen.append((i0, i1)), 0, 2)
+    assert len(seen) == 1                       # an empty batch: no call
+
+
 def test_a_bad_chunk_is_named():
     with pytest.raises(ValueError, match="chunk must be a positive integer, got 0"):
         K.over_cores(lambda i0, i1: None, 4, 0)

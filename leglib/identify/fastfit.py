@@ -620,31 +620,19 @@ def refit_from(ts, ys, starts) -> np.ndarray:
     t, y, bounds = _pack(ts, ys)
     out = np.empty((bounds.size - 1, 5))
     p0s = np.ascontiguousarray(starts, dtype=float).reshape(-1, 5)
-    _over_responses(lambda k0, k1: _refit_packed(t, y, bounds[k0:k1 + 1], p0s[k0:k1], out[k0:k1]), bounds, 4)
+    over_cores(lambda k0, k1: _refit_packed(t, y, bounds[k0:k1 + 1], p0s[k0:k1], out[k0:k1]), bounds.size - 1, 4,
+               serial_below=PARALLEL_FROM)
     return out
 
 
 @njit(cache=True, nogil=True)
 def _fit_packed(t, y, bounds, out, status):
     """:func:`_fit_one` of every packed response (rows of ``out`` and ``status``); called
-    on parts of a batch from threads (:func:`_over_responses`): each response is fitted
-    alone, the same numbers."""
+    on parts of a batch from threads (:func:`leglib.cores.over_cores`): each response is
+    fitted alone, the same numbers."""
     for k in range(bounds.size - 1):
         a, b = bounds[k], bounds[k + 1]
         status[k] = _fit_one(t[a:b], y[a:b], out[k])
-
-
-def _over_responses(call, bounds, chunk):
-    """``call(k0, k1)`` on parts of the packed responses ``k0..k1-1`` (``bounds[k0:k1 + 1]``
-    their bounds), on the cores from :data:`PARALLEL_FROM` responses on (below that one
-    thread fits them: the thread pool costs more than it gives), ``chunk`` at a time."""
-    k = bounds.size - 1
-    if k < 1:
-        return
-    if k < PARALLEL_FROM:
-        call(0, k)
-    else:
-        over_cores(call, k, chunk)
 
 
 @njit(cache=True)
@@ -728,7 +716,8 @@ def _fit(t, y, bounds):
     out = np.empty((k, N_OUT))
     status = np.empty(k, dtype=np.int64)
     # responses handed out a few at a time: their fits differ in cost
-    _over_responses(lambda k0, k1: _fit_packed(t, y, bounds[k0:k1 + 1], out[k0:k1], status[k0:k1]), bounds, 4)
+    over_cores(lambda k0, k1: _fit_packed(t, y, bounds[k0:k1 + 1], out[k0:k1], status[k0:k1]), k, 4,
+               serial_below=PARALLEL_FROM)
     return status, out
 
 

@@ -47,10 +47,9 @@ def foot_position(leg: LegParams, q1, q2):
     shape, (a, b) = _flat(q1, q2)
     out = np.empty((a.size, 2))
     P = param_vector(leg)
-    if a.size < PARALLEL_POINTS:
-        _batch_foot(a, b, P, out)
-    else:   # a part per core: each point alone, the same numbers
-        over_cores(lambda i0, i1: _batch_foot(a[i0:i1], b[i0:i1], P, out[i0:i1]), a.size, -(-a.size // cores()))
+    # a part per core from PARALLEL_POINTS points on: each point alone, the same numbers
+    over_cores(lambda i0, i1: _batch_foot(a[i0:i1], b[i0:i1], P, out[i0:i1]), a.size, -(-a.size // cores()),
+               serial_below=PARALLEL_POINTS)
     return out[:, 0].reshape(shape), out[:, 1].reshape(shape)
 
 
