@@ -491,7 +491,7 @@ def test_live_view_redraws_during_a_realtime_step(lab, browser):
         "import numpy as np\n"
         "run_stats = {'samples': len(r.t), 'sample_rate_hz': r.meta['sample_rate_hz'], 'completed': r.completed,\n"
         "             'abort_reason': r.abort_reason, 'median_period_s': float(np.median(np.diff(r.t))),\n"
-        "             'max_gap_s': float(np.max(np.diff(r.t)))}"),
+        "             'max_gap_s': float(np.max(np.diff(r.t))), 'first_s': float(r.t[0]), 'last_s': float(r.t[-1])}"),
         result)
     seen, stats = _watch_live_view(browser, lab, path, result)
     assert len(seen) >= 3, f"the live view changed {len(seen)} times during a 3 s realtime step"
@@ -509,10 +509,16 @@ def test_live_view_redraws_during_a_realtime_step(lab, browser):
     # the sampling keeps its requested 2 ms period (the median: a host that loses the CPU
     # skips a slot now and then, which lowers the mean rate, not the period)
     assert stats["median_period_s"] == pytest.approx(0.002, rel=0.05)
-    # the mean rate only shows that sampling went on throughout (at 250 Hz, at least 750 of the
-    # 3 s step's 1500 slots): how far a loaded 2-core host lowers it is a benchmark's matter
-    # (make bench liveview_sampling), not this test's
-    assert stats["sample_rate_hz"] > 250
+    # sampling went on throughout: from the step's first slot to its last, with no gap as long
+    # as the step's 0.5 s watchdog (a longer one disarms the motors: the branch above). How
+    # many slots a loaded host skips -- the mean rate, 327 and 243 Hz in two CI runs on a
+    # 2-core machine with the other test worker busy -- is a benchmark's matter (make bench
+    # liveview_sampling), not this test's.
+    assert stats["first_s"] < 0.05 and stats["last_s"] > 3.0 - 0.05, (stats["first_s"], stats["last_s"])
+    assert stats["max_gap_s"] < 0.5, stats["max_gap_s"]
+    if stats["sample_rate_hz"] < 250:
+        warnings.warn(f"the realtime step sampled at a mean {stats['sample_rate_hz']:.0f} Hz of 500 (a loaded host "
+                      f"skipped slots; the longest gap {stats['max_gap_s'] * 1e3:.0f} ms)")
 
 
 # ---------------------------------------------------------------------------------------
