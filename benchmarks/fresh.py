@@ -1,7 +1,7 @@
 """A fresh clone of the committed HEAD with this environment's packages: what a newcomer
-has after ``git clone`` and ``make venv`` (no new venv is built: the packages are these).
-The clone's numba cache (beside its sources) and matplotlib's font cache start empty;
-:func:`env` points Python at the clone."""
+has after ``git clone`` and ``make venv`` (no new venv is built: the packages are these;
+leglib's bytecode is written, as ``make venv`` writes it). The clone's numba cache (beside
+its sources) and matplotlib's font cache start empty; :func:`env` points Python at the clone."""
 
 from __future__ import annotations
 
@@ -15,9 +15,11 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def clone(tmp: Path) -> tuple[Path, str]:
-    """``git clone`` of REPO's HEAD into ``tmp/leglib``; returns the clone and its short commit."""
+    """``git clone`` of REPO's HEAD into ``tmp/leglib`` with leglib's bytecode written (as
+    ``make venv`` does); returns the clone and its short commit."""
     path = Path(tmp) / "leglib"
     subprocess.run(["git", "clone", "-q", str(REPO), str(path)], check=True)
+    subprocess.run([sys.executable, "-m", "compileall", "-q", str(path / "leglib")], check=True)
     head = subprocess.run(["git", "-C", str(path), "rev-parse", "--short", "HEAD"], capture_output=True,
                           text=True, check=True).stdout.strip()
     return path, head
