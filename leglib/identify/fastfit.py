@@ -336,9 +336,14 @@ def _levenberg_marquardt(t, y, p, lo, hi, max_iter, dt):
         new = _normal_equations(t, y, trial, A_new, g_new, True, dt)
         if new < cost:
             gain = cost - new
-            p[:] = trial
-            A[:, :] = A_new
-            g[:] = g_new
+            # element by element, not p[:] = trial: a slice assigned from an array makes numba
+            # compile its shape-mismatch message (f-strings, str.join) for each rank, about
+            # 5 of the fit kernels' 22 CPU-s of compile; the sizes here are fixed
+            for a in range(5):
+                p[a] = trial[a]
+                g[a] = g_new[a]
+                for b in range(5):
+                    A[a, b] = A_new[a, b]
             cost = new
             lam = max(lam * 0.3, 1e-12)
             if gain <= 1e-13 * cost:
@@ -549,7 +554,8 @@ def _fit_one(t_in, y, out):
                 and abs(p[0] - best[0]) <= SAME_PARAM * best[0] and abs(p[1] - best[1]) <= SAME_PARAM * best[1])
         if cost < best_cost:
             best_cost = cost
-            best[:] = p
+            for a in range(5):
+                best[a] = p[a]
         if same or 2.0 * cost < (1.0 - R2_ENOUGH) * sst:
             break
     if best[0] != 1.0 and abs(best[0] - 1.0) <= 1e-6:
