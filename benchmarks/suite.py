@@ -49,7 +49,8 @@ def cpu_times() -> dict:
     the host ran something else -- a suite's wall time lengthened by the host's other
     guests, which its CPU time does not show."""
     try:
-        fields = open("/proc/stat").readline().split()
+        with open("/proc/stat") as f:
+            fields = f.readline().split()
     except OSError:
         return {}
     tick = os.sysconf("SC_CLK_TCK")
