@@ -337,8 +337,8 @@ def _levenberg_marquardt(t, y, p, lo, hi, max_iter, dt):
         if new < cost:
             gain = cost - new
             # element by element, not p[:] = trial: a slice assigned from an array makes numba
-            # compile its shape-mismatch message (f-strings, str.join) for each rank, about
-            # 5 of the fit kernels' 22 CPU-s of compile; the sizes here are fixed
+            # compile its shape-mismatch message (f-strings, str.join) for each rank: 3 to 5
+            # of the fit kernels' 21 to 23 CPU-s of compile; the sizes here are fixed
             for a in range(5):
                 p[a] = trial[a]
                 g[a] = g_new[a]
