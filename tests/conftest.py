@@ -23,6 +23,81 @@ WARM_TIMEOUT_S = 900
 
 WORKER_CORE = None   # the core this pytest-xdist worker keeps to, when it keeps to one
 _CORES_BEFORE = None  # the cores it could run on before
+SPARE = False         # this worker is the spare one (below)
+
+# -- a spare worker for the time the kept workers wait ---------------------------------------
+#
+# With ``-n auto`` the suite starts one worker per core, each kept to its core, and one spare
+# worker kept to none at the lowest priority (nice 19): the system gives it a core only while
+# that core's worker waits (a real-time step, a notebook kernel starting, a browser) or has
+# finished. It takes only the tests below: numerics on the twin's kernels and the files,
+# nothing that measures the wall clock, starts a notebook kernel or drives the ``odrive``
+# client (whose thread wake-ups cost about twice the CPU across cores). The kept workers take
+# the other tests, and these too once the others are all handed out (tests/xdist_spare.py).
+# Measured on fresh clones, three interleaved pairs without and with it: the cores idle 94, 96
+# and 94 against 51, 39 and 34 core-seconds; the suite 349, 329 and 363 s against 329, 323 and
+# 330 s, at 575, 538 and 601 against 560, 581 and 598 CPU seconds (the spare worker ran 57 to
+# 84 CPU seconds of tests, the kept ones 56 to 104 fewer).
+SPARE_TESTS = (
+    "tests/identify/", "tests/design/", "tests/model/test_model.py", "tests/files/test_csvtext.py",
+    "tests/twin/test_twin.py", "tests/device/test_firmware.py", "tests/device/test_firmware_control.py",
+    "tests/experiments/test_experiments.py",
+    "tests/evaluation/test_robustness.py", "tests/notebook/test_widgets.py", "tests/notebook/test_animation.py",
+    "tests/test_fuzz.py", "tests/test_params.py", "tests/test_units.py", "tests/test_thesis.py",
+    "tests/test_plots.py",
+)
+NOT_SPARE_TESTS = (   # within those: tests that time the wall clock or look for a board on USB
+    "tests/twin/test_twin.py::test_virtual_clock_is_fast_and_realtime_mode_paces",
+    "tests/twin/test_twin.py::test_a_realtime_sleep_takes_its_seconds_after_a_busy_host",
+    "tests/device/test_firmware.py::test_real_time_never_runs_ahead_of_the_wall_clock",
+    "tests/experiments/test_experiments.py::test_usb_without_device_fails_clearly",
+    "tests/experiments/test_experiments.py::test_a_step_with_a_firmware_error_is_not_completed[True]",
+    "tests/experiments/test_experiments.py::test_a_host_stall_longer_than_the_watchdog_disarms_the_realtime_step",
+    "tests/experiments/test_experiments.py::test_live_view_hook_keeps_the_requested_rate_on_the_realtime_twin",
+)
+
+
+def for_the_spare(nodeid: str) -> bool:
+    """Whether the spare worker may run the test ``nodeid``."""
+    return nodeid.startswith(SPARE_TESTS) and not nodeid.startswith(NOT_SPARE_TESTS)
+
+
+@pytest.hookimpl(optionalhook=True)   # pytest-xdist's hooks: -p no:xdist loads none
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto`` with ``--dist loadgroup`` (``make test``): a worker per core and the spare
+    one, where the system can keep a process to a core; otherwise pytest-xdist's own count."""
+    from leglib.notebook.run import usable_cores
+
+    cores = usable_cores()
+    if len(cores) >= 2 and config.getvalue("dist") == "loadgroup":
+        return len(cores) + 1
+    return None
+
+
+def _spare_worker(config) -> str | None:
+    """The spare worker's id on the controller (``gw2`` on 2 cores), None without one: with
+    ``--dist loadgroup``, one worker more than the cores it may keep to."""
+    from leglib.notebook.run import usable_cores
+
+    cores = usable_cores()
+    if config.getvalue("dist") == "loadgroup" and len(cores) >= 2 and config.option.numprocesses == len(cores) + 1:
+        return f"gw{len(cores)}"
+    return None
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node):
+    node.workerinput["spare_worker"] = _spare_worker(node.config)   # each worker knows which one it is
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadgroup`` with the spare worker: :class:`xdist_spare.SpareScheduling`."""
+    spare = _spare_worker(config)
+    if spare is None:
+        return None
+    from xdist_spare import SpareScheduling
+    return SpareScheduling(config, log, spare=spare, takes=for_the_spare)
 
 
 def _keep_worker_to_its_core(config) -> None:
@@ -32,8 +107,12 @@ def _keep_worker_to_its_core(config) -> None:
     wake-up for every property access of the twin costs about twice the CPU across cores).
     The suite makes about 800,000 such accesses; on a fresh clone (benchmarks.suite) it used
     604 CPU seconds with its workers kept to their cores, against 661 to 716 in three runs
-    without. Measured and not kept: one worker more, kept to no core, to run where a kept
-    worker's test waits. It cut the cores' idle time on a fresh clone (17 against about 90
+    without. A worker past one per core is the spare one (:data:`SPARE_TESTS`): kept to no
+    core, at nice 19 from its first test on (:func:`pytest_collection_finish`: collecting at
+    that priority would hold up every worker's start).
+
+    Measured and not kept: one worker more, kept to no core, to run where a kept worker's
+    test waits. It cut the cores' idle time on a fresh clone (17 against about 90
     core-seconds) but not the wall time: 351 to 374 s in three runs, against 325 to 405 s
     in four runs without, at 20 to 90 CPU seconds more on a machine whose speed varied by a
     third from run to run (benchmarks.suite.probe). Nor when that worker ran only the tests
@@ -41,15 +120,28 @@ def _keep_worker_to_its_core(config) -> None:
     idle 35 and 46 core-seconds against 93 and 89, but 355 against 382 s and 355 against
     351 s in two interleaved pairs of fresh-clone runs, at 5 and 49 CPU seconds more; and in
     each of those runs a timing test failed there (a 500 Hz loop's pace, the reason a
-    watchdog trip gave), its real-time loop competing with both kept workers."""
-    global WORKER_CORE, _CORES_BEFORE
+    watchdog trip gave), its real-time loop competing with both kept workers. Both ran at
+    the kept workers' priority and took tests that drive the client or time the clock; the
+    spare worker takes neither, and yields its core at once (nice 19)."""
+    global WORKER_CORE, _CORES_BEFORE, SPARE
     from leglib.notebook.run import core_of, usable_cores
 
     index, count = int(config.workerinput["workerid"].removeprefix("gw")), int(config.workerinput["workercount"])
-    WORKER_CORE = core_of(index, count, usable_cores())
+    if config.workerinput.get("spare_worker"):
+        if config.workerinput["workerid"] == config.workerinput["spare_worker"]:
+            SPARE = True
+            return
+        count -= 1
+    cores = usable_cores()
+    WORKER_CORE = core_of(index, count, cores)
     if WORKER_CORE is not None:
         _CORES_BEFORE = os.sched_getaffinity(0)
         os.sched_setaffinity(0, {WORKER_CORE})   # this thread, and every thread and process it starts
+
+
+def pytest_collection_finish(session):
+    if SPARE:
+        os.setpriority(os.PRIO_PROCESS, 0, 19)   # this thread, and every thread and process it starts
 
 
 @contextlib.contextmanager
