@@ -30,9 +30,9 @@ SPARE = False         # this worker is the spare one (below)
 # With ``-n auto`` the suite starts one worker per core, each kept to its core, and one spare
 # worker kept to none at the lowest priority (nice 19): the system gives it a core only while
 # that core's worker waits (a real-time step, a notebook kernel starting, a browser) or has
-# finished. It takes only the tests below: numerics on the twin's kernels and the files,
-# nothing that measures the wall clock, starts a notebook kernel or drives the ``odrive``
-# client (whose thread wake-ups cost about twice the CPU across cores). The kept workers take
+# finished. It takes only the tests below: numerics, the measurement files, the twin and its
+# firmware on their own clock; none of them times the wall clock or waits on a process with a
+# time limit (a notebook kernel, a browser, a child Python). The kept workers take
 # the other tests, and these too once the others are all handed out (tests/xdist_spare.py).
 # Measured on fresh clones, three interleaved pairs without and with it: the cores idle 94, 96
 # and 94 against 51, 39 and 34 core-seconds; the suite 349, 329 and 363 s against 329, 323 and
@@ -41,19 +41,14 @@ SPARE = False         # this worker is the spare one (below)
 SPARE_TESTS = (
     "tests/identify/", "tests/design/", "tests/model/test_model.py", "tests/files/test_csvtext.py",
     "tests/twin/test_twin.py", "tests/device/test_firmware.py", "tests/device/test_firmware_control.py",
-    "tests/experiments/test_experiments.py",
     "tests/evaluation/test_robustness.py", "tests/notebook/test_widgets.py", "tests/notebook/test_animation.py",
     "tests/test_fuzz.py", "tests/test_params.py", "tests/test_units.py", "tests/test_thesis.py",
     "tests/test_plots.py",
 )
-NOT_SPARE_TESTS = (   # within those: tests that time the wall clock or look for a board on USB
+NOT_SPARE_TESTS = (   # within those: tests that time the wall clock
     "tests/twin/test_twin.py::test_virtual_clock_is_fast_and_realtime_mode_paces",
     "tests/twin/test_twin.py::test_a_realtime_sleep_takes_its_seconds_after_a_busy_host",
     "tests/device/test_firmware.py::test_real_time_never_runs_ahead_of_the_wall_clock",
-    "tests/experiments/test_experiments.py::test_usb_without_device_fails_clearly",
-    "tests/experiments/test_experiments.py::test_a_step_with_a_firmware_error_is_not_completed[True]",
-    "tests/experiments/test_experiments.py::test_a_host_stall_longer_than_the_watchdog_disarms_the_realtime_step",
-    "tests/experiments/test_experiments.py::test_live_view_hook_keeps_the_requested_rate_on_the_realtime_twin",
 )
 
 
