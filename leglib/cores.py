@@ -20,7 +20,9 @@ thread per core the process may run on; its idle threads sleep.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures import wait as _wait
@@ -57,6 +59,27 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forget_pool)
 
 
+@contextlib.contextmanager
+def _ctrl_c_after():
+    """A Ctrl-C (SIGINT) that arrives inside the block is handled when the block has ended,
+    by the handler that was in place (the default one raises KeyboardInterrupt there). Only
+    the main thread runs Python's signal handlers, so elsewhere nothing is held back; nor
+    where the handler in place was not installed from Python (it cannot be put back)."""
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is None:
+        yield
+        return
+    held = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: held.append(frame))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if held and callable(previous):
+            previous(signal.SIGINT, held[0])
+        elif held and previous == signal.SIG_DFL:
+            signal.raise_signal(signal.SIGINT)
+
+
 def over_cores(call, n: int, chunk: int = 1, serial_below: int = 2) -> None:
     """``call(i0, i1)`` for every part ``[i0, i1)`` of ``range(n)`` (``chunk`` long, the
     last one shorter), on a thread per core, each thread taking the next part when it is
@@ -88,16 +111,12 @@ def over_cores(call, n: int, chunk: int = 1, serial_below: int = 2) -> None:
                 return
             call(*part)
 
-    futures = [_executor().submit(work) for _ in range(min(cores(), len(parts)))]
-    interrupt = None
-    while True:
-        try:
-            _wait(futures)
-            break
-        except KeyboardInterrupt as exc:   # raised once every part has run
-            interrupt = exc
-    if interrupt is not None:
-        raise interrupt
+    # a Ctrl-C while the parts are handed out or run is raised once every part has run
+    # (caught around the wait alone, one that came while the threads were handed their
+    # work left the parts running behind the KeyboardInterrupt)
+    with _ctrl_c_after():
+        futures = [_executor().submit(work) for _ in range(min(cores(), len(parts)))]
+        _wait(futures)
     for f in futures:
         f.result()
 

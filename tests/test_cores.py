@@ -99,6 +99,51 @@ def test_a_ctrl_c_is_raised_after_every_part_ran(monkeypatch):
     assert sorted(done) == list(range(10))
 
 
+def test_a_ctrl_c_while_the_parts_are_handed_out_is_raised_after_every_part_ran(monkeypatch):
+    """The Ctrl-C lands while the second thread is being handed its work (the first one
+    already runs parts): it too is raised only when the last part ended."""
+    monkeypatch.setattr(K, "cores", lambda: 2)
+    pool, handed = K._executor(), []
+
+    class Pool:
+        def submit(self, fn):
+            handed.append(fn)
+            if len(handed) == 2:
+                signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
+                time.sleep(0.01)   # the main thread runs the handler here
+            return pool.submit(fn)
+    monkeypatch.setattr(K, "_executor", Pool)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    done = []
+
+    def call(i0, i1):
+        time.sleep(0.02)
+        done.append(i0)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            K.over_cores(call, 10)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert len(handed) == 2 and sorted(done) == list(range(10))
+
+
+def test_after_the_parts_a_ctrl_c_is_the_handlers_in_place_at_once(monkeypatch):
+    """over_cores puts back the SIGINT handler that was in place before it."""
+    monkeypatch.setattr(K, "cores", lambda: 2)
+    seen = []
+
+    def handler(signum, frame):
+        seen.append(signum)
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        K.over_cores(lambda i0, i1: time.sleep(0.001), 4)
+        assert signal.getsignal(signal.SIGINT) is handler and not seen
+        signal.raise_signal(signal.SIGINT)
+        assert seen == [signal.SIGINT]
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def test_a_small_batch_is_one_call_in_the_calling_thread(monkeypatch):
     """Below ``serial_below`` items (a fit of fewer than PARALLEL_FROM responses, fewer than
     PARALLEL_POINTS foot positions) the pool's hand-offs cost more than they give."""
