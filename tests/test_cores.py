@@ -79,16 +79,31 @@ def test_an_exception_in_a_part_is_raised_after_the_other_parts_ran(monkeypatch)
     assert sorted(done) == [0, 1, 2, 4, 5, 6, 7]
 
 
-def test_a_ctrl_c_is_raised_after_every_part_ran(monkeypatch):
-    """A Ctrl-C while the parts run leaves no row of the batch behind: it is raised when
-    the last part ended, as after one compiled call."""
+@pytest.mark.parametrize("when", ["while the parts run", "while the threads are handed their parts"])
+def test_a_ctrl_c_is_raised_after_every_part_ran(monkeypatch, when):
+    """A Ctrl-C while the parts run, or while the threads are handed them, leaves no row of
+    the batch behind: it is raised when the last part ended, as after one compiled call."""
     monkeypatch.setattr(K, "cores", lambda: 2)
+
+    def ctrl_c():
+        signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
+    if when == "while the threads are handed their parts":
+        pool, handed = K._executor(), []
+
+        class Pool:
+            def submit(self, fn):
+                handed.append(fn)
+                if len(handed) == 2:       # the first thread already runs parts
+                    ctrl_c()
+                    time.sleep(0.01)       # the main thread runs the handler here
+                return pool.submit(fn)
+        monkeypatch.setattr(K, "_executor", Pool)
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     done = []
 
     def call(i0, i1):
-        if i0 == 1:
-            signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
+        if i0 == 1 and when == "while the parts run":
+            ctrl_c()
         time.sleep(0.02)
         done.append(i0)
     try:
@@ -97,34 +112,6 @@ def test_a_ctrl_c_is_raised_after_every_part_ran(monkeypatch):
     finally:
         signal.signal(signal.SIGINT, previous)
     assert sorted(done) == list(range(10))
-
-
-def test_a_ctrl_c_while_the_parts_are_handed_out_is_raised_after_every_part_ran(monkeypatch):
-    """The Ctrl-C lands while the second thread is being handed its work (the first one
-    already runs parts): it too is raised only when the last part ended."""
-    monkeypatch.setattr(K, "cores", lambda: 2)
-    pool, handed = K._executor(), []
-
-    class Pool:
-        def submit(self, fn):
-            handed.append(fn)
-            if len(handed) == 2:
-                signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
-                time.sleep(0.01)   # the main thread runs the handler here
-            return pool.submit(fn)
-    monkeypatch.setattr(K, "_executor", Pool)
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    done = []
-
-    def call(i0, i1):
-        time.sleep(0.02)
-        done.append(i0)
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            K.over_cores(call, 10)
-    finally:
-        signal.signal(signal.SIGINT, previous)
-    assert len(handed) == 2 and sorted(done) == list(range(10))
 
 
 def test_after_the_parts_a_ctrl_c_is_the_handlers_in_place_at_once(monkeypatch):
