@@ -37,7 +37,9 @@ SPARE = False         # this worker is the spare one (below)
 # Measured on fresh clones, three interleaved pairs without and with it: the cores idle 94, 96
 # and 94 against 51, 39 and 34 core-seconds; the suite 349, 329 and 363 s against 329, 323 and
 # 330 s, at 575, 538 and 601 against 560, 581 and 598 CPU seconds (the spare worker ran 57 to
-# 84 CPU seconds of tests, the kept ones 56 to 104 fewer).
+# 84 CPU seconds of tests, the kept ones 56 to 104 fewer). The first pair ran an earlier version:
+# without the two firmware files, the widgets and the animation on the list, and with a stop
+# rule that left the spare's last test waiting until the session ended.
 SPARE_TESTS = (
     "tests/identify/", "tests/design/", "tests/model/test_model.py", "tests/files/test_csvtext.py",
     "tests/twin/test_twin.py", "tests/device/test_firmware.py", "tests/device/test_firmware_control.py",
