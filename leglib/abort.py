@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from numba import njit
 
-from . import _numba_inline  # noqa: F401  (before any kernel compiles)
+from . import _numba_gc, _numba_inline  # noqa: F401  (before any kernel compiles)
 from .kernelmath import select
 
 # leglib's own abort codes (the twin's ABORT[b, 1]) and what a step's record says of each

@@ -16,7 +16,7 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
-from . import _numba_inline  # noqa: F401  (before any kernel compiles)
+from . import _numba_gc, _numba_inline  # noqa: F401  (before any kernel compiles)
 
 
 @intrinsic

@@ -13,7 +13,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent / "leglib"
 
 LAYERS = [
-    ("leglib._version", "leglib._numba_inline", "leglib.errors", "leglib.checks", "leglib.kernelmath", "leglib.cores", "leglib.abort",
+    ("leglib._version", "leglib._numba_inline", "leglib._numba_gc", "leglib.errors", "leglib.checks", "leglib.kernelmath", "leglib.cores", "leglib.abort",
      "leglib.params", "leglib.units"),
     ("leglib.model",),
     ("leglib.plots",),

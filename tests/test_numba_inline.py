@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent / "leglib"
 
 # nested inline="always" functions with loops and branches (a callee of several blocks,
@@ -103,12 +105,13 @@ def _imports(tree: ast.Module) -> list[tuple[int, str, list[str]]]:
     return out
 
 
-def test_every_module_that_imports_numba_imports_the_fix():
+@pytest.mark.parametrize("fix", ["_numba_inline", "_numba_gc"])   # the second: tests/test_numba_gc.py
+def test_every_module_that_imports_numba_imports_the_fix(fix):
     kernels = []
-    for path in sorted(p for p in ROOT.rglob("*.py") if p.name != "_numba_inline.py"):
+    for path in sorted(p for p in ROOT.rglob("*.py") if p.name not in ("_numba_inline.py", "_numba_gc.py")):
         imports = _imports(ast.parse(path.read_text()))
         if any(name == "numba" or name.startswith("numba.") for _, name, _ in imports):
             kernels.append(path.relative_to(ROOT.parent))
-            assert any("_numba_inline" in names or name.endswith("_numba_inline") for _, name, names in imports), \
-                f"{kernels[-1]} imports numba at module level but not leglib._numba_inline"
+            assert any(fix in names or name.endswith(fix) for _, name, names in imports), \
+                f"{kernels[-1]} imports numba at module level but not leglib.{fix}"
     assert Path("leglib/twin/kernel.py") in kernels and len(kernels) >= 10, kernels

@@ -27,7 +27,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .. import _numba_inline  # noqa: F401  (before any kernel compiles)
+from .. import _numba_gc, _numba_inline  # noqa: F401  (before any kernel compiles)
 from ..cores import over_cores
 
 # status codes of one response (their messages: _error)

@@ -19,6 +19,7 @@ from numba import njit
 from scipy.optimize import least_squares
 
 from .. import (
+    _numba_gc,  # noqa: F401  (before any kernel compiles)
     _numba_inline,  # noqa: F401  (before any kernel compiles)
     checks,
 )

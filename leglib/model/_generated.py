@@ -8,7 +8,7 @@ import math
 
 from numba import njit
 
-from .. import _numba_inline  # noqa: F401  (before any kernel compiles)
+from .. import _numba_gc, _numba_inline  # noqa: F401  (before any kernel compiles)
 
 
 @njit(cache=True)

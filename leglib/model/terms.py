@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .. import _numba_inline  # noqa: F401  (before any kernel compiles)
+from .. import _numba_gc, _numba_inline  # noqa: F401  (before any kernel compiles)
 from ..params import LegParams
 from . import _generated as gen
 from .param_names import PARAM_NAMES

@@ -3,7 +3,7 @@
 numba compiles a kernel on its first call in a process and keeps the machine code in its
 cache (beside the source, ``leglib/**/__pycache__``, or under ``$NUMBA_CACHE_DIR``); a
 later process loads it in a fraction of a second. With an empty cache the first
-calibration of the twin waits about 30 s and the first step fit about 15 s (2 cores), and a
+calibration of the twin waits about 16 s and the first step fit about 9 s more (2 cores), and a
 first ``make run`` compiles the same kernels in two notebook kernels at once. So ``make
 venv`` compiles them once at install, a group per process, each group's line printed as it
 ends; ``python -m leglib run`` does it again first when a kernel's source changed since
@@ -208,7 +208,7 @@ def compile_kernels(groups=GROUPS, stream=None) -> dict:
     fingerprint = _fingerprint()   # of the sources as they are when the compiles start
     if not up_to_date():
         purge_cache()
-    print(f"[compile] numba kernels, {len(groups)} groups at once (about 36 s on 2 cores with an "
+    print(f"[compile] numba kernels, {len(groups)} groups at once (about 30 s on 2 cores with an "
           f"empty cache, a few seconds with a current one): {', '.join(groups)}", file=stream, flush=True)
     t0 = time.monotonic()
     # each group's output into a file (a pipe read only at the end could fill and stall it)

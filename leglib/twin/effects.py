@@ -20,7 +20,7 @@ import math
 
 from numba import njit
 
-from .. import _numba_inline  # noqa: F401  (before any kernel compiles)
+from .. import _numba_gc, _numba_inline  # noqa: F401  (before any kernel compiles)
 from ..kernelmath import exp as _exp
 from ..kernelmath import select
 from ..kernelmath import sincos as _sincos

@@ -20,7 +20,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .. import _numba_inline  # noqa: F401  (before any kernel compiles)
+from .. import _numba_gc, _numba_inline  # noqa: F401  (before any kernel compiles)
 from ..abort import (
     ABORT_NONE,
     ABORT_NONFINITE,

@@ -17,7 +17,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .. import _numba_inline  # noqa: F401  (before any kernel compiles)
+from .. import _numba_gc, _numba_inline  # noqa: F401  (before any kernel compiles)
 from ..abort import ABORT_NONFINITE
 from ..kernelmath import select
 from ..kernelmath import sincos as _sincos

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .. import _numba_inline  # noqa: F401  (before any kernel compiles)
+from .. import _numba_gc, _numba_inline  # noqa: F401  (before any kernel compiles)
 
 # ---------------------------------------------------------------------------------------
 

@@ -28,7 +28,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .. import _numba_inline  # noqa: F401  (before any kernel compiles)
+from .. import _numba_gc, _numba_inline  # noqa: F401  (before any kernel compiles)
 from ..kernelmath import py_max, py_min, select
 
 TWO_PI = 2.0 * math.pi
