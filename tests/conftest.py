@@ -45,7 +45,7 @@ SPARE_TESTS = (
     "tests/twin/test_twin.py", "tests/device/test_firmware.py", "tests/device/test_firmware_control.py",
     "tests/evaluation/test_robustness.py", "tests/notebook/test_widgets.py", "tests/notebook/test_animation.py",
     "tests/test_fuzz.py", "tests/test_params.py", "tests/test_units.py", "tests/test_thesis.py",
-    "tests/test_plots.py",
+    "tests/test_plots.py", "tests/evaluation/test_reality_gap.py", "tests/device/test_conformance.py",
 )
 NOT_SPARE_TESTS = (   # within those: tests that time the wall clock
     "tests/twin/test_twin.py::test_virtual_clock_is_fast_and_realtime_mode_paces",
