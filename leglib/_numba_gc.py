@@ -1,8 +1,9 @@
 """numba's compiles of leglib's kernels run with Python's cyclic garbage collector paused.
 
 numba builds a kernel's IR, its types and its LLVM module out of many small objects that
-refer to each other. The collector runs every 700 allocations and walks those objects again
-each time: 15 % of the device kernel's compile in a sampling profile (empty cache, one core).
+refer to each other. The collector runs after every 700 new objects it tracks and walks
+them again each time: 15 % of the device kernel's compile in a sampling profile (empty
+cache, one core).
 A :class:`numba.core.event.Listener` on numba's ``"numba:compile"`` event pauses the
 collector when the compile of a leglib function starts and enables it again when that
 compile ends (and every compile nested in it: the functions it calls), when it was enabled
