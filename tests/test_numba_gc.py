@@ -1,12 +1,10 @@
 """leglib._numba_gc: the garbage collector paused while a leglib function compiles, and as
-it was before once the compile ends (also when it fails); other functions' compiles and
-loads from numba's cache untouched. (That every module with kernels imports it:
-tests/test_numba_inline.py.)"""
+it was before once the compile ends (also when it fails); other functions' compiles left as
+they are. (That every module with kernels imports it: tests/test_numba_inline.py.)"""
 
 import gc
 
 import numba
-import numpy as np
 import pytest
 from numba.core import event
 from numba.core.errors import TypingError
@@ -17,7 +15,7 @@ import leglib._numba_gc  # noqa: F401  (the listener, registered on import)
 def _function(module: str, body: str = "return x + 1"):
     """A new function ``f(x)`` defined in a module named ``module`` (numba reads its name
     from the function's globals), not yet compiled."""
-    ns = {"__name__": module, "np": np}
+    ns = {"__name__": module}
     exec(f"def f(x):\n    {body}\n", ns)
     return numba.njit(ns["f"])
 
