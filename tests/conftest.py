@@ -41,8 +41,8 @@ SPARE = False         # this worker is the spare one (below)
 # without the two firmware files, the widgets and the animation on the list, and with a stop
 # rule that left the spare's last test waiting until the session ended. With the reality-gap and
 # the firmware conformance tests on its list too (in-process, the twin on its own clock), three
-# more interleaved pairs: the spare ran out of tests 14 to 48 s before the kept workers ended
-# without them and 0 to 4 s with them; the cores idle 33, 41 and 45 against 24, 22 and 24
+# more interleaved pairs: the spare ran out of tests 45 to 51 s before the kept workers ended
+# without them and 3 to 4 s with them; the cores idle 33, 41 and 45 against 24, 22 and 24
 # core-seconds, the suite 321, 290 and 283 s against 284, 295 and 278 s.
 SPARE_TESTS = (
     "tests/identify/", "tests/design/", "tests/model/test_model.py", "tests/files/test_csvtext.py",
